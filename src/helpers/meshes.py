@@ -1,0 +1,128 @@
+"""Load object meshes with trimesh and normalise them.
+
+Manifest meshes come in arbitrary units and origins. They are centred on
+their bounding-box centre and scaled to a common diameter (metres), which
+the renderer relies on to frame every object the same way. Textures are kept
+where the manifest says the object is textured; untextured ones get the
+manifest colour.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial.distance import pdist
+
+from .manifest import Manifest, ManifestError, load_manifest, verify_file
+
+#: Diameter (metres) every manifest object is scaled to.
+DEFAULT_DIAMETER_M = 0.2
+
+
+@dataclass
+class ObjectMesh:
+    """A normalised mesh.
+
+    Attributes:
+        name: object name.
+        mesh: trimesh.Trimesh in metres, model frame.
+        diameter: largest vertex-to-vertex distance, metres.
+        textured: True if a texture image is attached.
+        sha256: checksum of the source mesh file (part of render cache keys).
+        symmetries: (K, 3, 3) model-frame symmetry rotations (identity first).
+    """
+
+    name: str
+    mesh: trimesh.Trimesh
+    diameter: float
+    textured: bool
+    sha256: str
+    symmetries: np.ndarray
+
+
+def mesh_diameter(vertices: np.ndarray) -> float:
+    """Largest pairwise distance of (N, 3) vertices (exact, via the convex hull)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    if len(v) < 2:
+        return 0.0
+    try:
+        hull = trimesh.convex.convex_hull(v)
+        v = hull.vertices
+    except Exception:  # degenerate (flat) point sets: fall back to all vertices
+        pass
+    return float(pdist(v).max())
+
+
+def load_mesh_file(path: str | os.PathLike) -> trimesh.Trimesh:
+    """Load one mesh file (obj/ply/stl/dae...) as a single Trimesh, textures kept.
+
+    Raises ValueError naming the file if it is missing, unreadable or empty.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"mesh file {path} does not exist")
+    # allow_anywhere: some packages' .mtl files point at textures in sibling folders.
+    resolver = trimesh.resolvers.FilePathResolver(str(path.parent), allow_anywhere=True)
+    try:
+        mesh = trimesh.load(str(path), force="mesh", resolver=resolver, process=False)
+    except Exception as e:
+        raise ValueError(f"mesh file {path} could not be read as a mesh: {e}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"mesh file {path} holds no triangles")
+    return mesh
+
+
+def has_texture(mesh: trimesh.Trimesh) -> bool:
+    vis = mesh.visual
+    return (getattr(vis, "kind", None) == "texture" and getattr(vis, "uv", None) is not None
+            and getattr(getattr(vis, "material", None), "image", None) is not None)
+
+
+def normalise(mesh: trimesh.Trimesh, diameter: float = DEFAULT_DIAMETER_M) -> trimesh.Trimesh:
+    """Centre on the bounding-box centre and scale to ``diameter`` metres (copy)."""
+    mesh = mesh.copy()
+    centre = mesh.bounds.mean(axis=0)
+    mesh.apply_translation(-centre)
+    d = mesh_diameter(mesh.vertices)
+    if d <= 0:
+        raise ValueError("mesh has zero extent")
+    mesh.apply_scale(diameter / d)
+    return mesh
+
+
+def set_color(mesh: trimesh.Trimesh, rgb: tuple[float, float, float]) -> trimesh.Trimesh:
+    """Replace any visual with a uniform colour (copy)."""
+    mesh = mesh.copy()
+    rgba = np.array([*rgb, 1.0]) * 255
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=np.tile(rgba.astype(np.uint8), (len(mesh.faces), 1)))
+    return mesh
+
+
+def load_object(name: str, manifest: Manifest | None = None, diameter: float = DEFAULT_DIAMETER_M) -> ObjectMesh:
+    """Load a manifest object, verified and normalised.
+
+    Checks the sha256 of the mesh and every extra file (textures, .mtl)
+    first; raises ManifestError naming the file on absence or mismatch.
+    """
+    m = manifest or load_manifest()
+    entry = m.object(name)
+    path = verify_file(entry.mesh, f"object {name!r}")
+    for f in entry.extra_files:
+        verify_file(f, f"object {name!r}")
+    mesh = load_mesh_file(path)
+    if entry.color is not None:
+        mesh = set_color(mesh, entry.color)
+        textured = False
+    else:
+        if not has_texture(mesh):
+            raise ManifestError(f"object {name!r}: manifest says textured (no colour) but {path} loaded without a texture")
+        textured = True
+    mesh = normalise(mesh, diameter)
+    sym = np.eye(3)[None]
+    if entry.symmetries:
+        sym = np.concatenate([sym, np.asarray(entry.symmetries, dtype=np.float64).reshape(-1, 3, 3)])
+    return ObjectMesh(name, mesh, diameter, textured, entry.mesh.sha256, sym)

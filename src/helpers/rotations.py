@@ -1,0 +1,167 @@
+"""Rotations on SO(3): sampling, distances, farthest point sampling, symmetry.
+
+All rotations are 3x3 matrices ``R_m2c`` (model -> OpenCV camera), stored as
+arrays of shape (N, 3, 3), float64 unless said otherwise. Angles are radians
+inside the code; functions with ``_deg`` in the name return degrees.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def haar_uniform(n: int, seed: int | np.random.Generator | None = 0) -> np.ndarray:
+    """Sample ``n`` Haar-uniform rotations, shape (n, 3, 3).
+
+    Follows the method's recipe: two Gaussian 3-vectors form a 6D
+    representation that Gram-Schmidt turns into an orthonormal frame. The
+    Gaussian is isotropic, so the first column is uniform on the sphere and
+    the second uniform on the circle orthogonal to it: the result is Haar.
+    """
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    rng = np.random.default_rng(seed)
+    a = rng.standard_normal((n, 3))
+    b = rng.standard_normal((n, 3))
+    return six_d_to_matrix(a, b)
+
+
+def six_d_to_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Gram-Schmidt of two 3-vectors (N, 3) each into rotations (N, 3, 3).
+
+    Columns are x = a/|a|, y = (b - (x.b) x)/|.|, z = x cross y.
+    """
+    x = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b - np.sum(x * b, axis=-1, keepdims=True) * x
+    y = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    z = np.cross(x, y)
+    return np.stack([x, y, z], axis=-1)
+
+
+def geodesic(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
+    """Geodesic angle (radians, in [0, pi]) between broadcastable (..., 3, 3) stacks.
+
+    arccos((tr(R1^T R2) - 1) / 2), with the cosine clipped for round-off.
+    """
+    tr = np.einsum("...ji,...ji->...", R1, R2)
+    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
+def geodesic_deg(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
+    """Geodesic angle in degrees; see :func:`geodesic`."""
+    return np.degrees(geodesic(R1, R2))
+
+
+def pairwise_geodesic(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """All geodesic angles (radians) between A (N,3,3) and B (M,3,3): (N, M)."""
+    tr = np.einsum("nij,mij->nm", A, B)
+    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
+def nearest(query: np.ndarray, refs: np.ndarray, chunk: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+    """Index (N,) and angle (N,) radians of the nearest reference to each query.
+
+    ``query`` (N,3,3), ``refs`` (M,3,3). Works in chunks of references so the
+    N x chunk trace matrix bounds memory.
+    """
+    query = np.asarray(query, dtype=np.float64)
+    refs = np.asarray(refs, dtype=np.float64)
+    best_tr = np.full(len(query), -np.inf)
+    best_idx = np.zeros(len(query), dtype=np.int64)
+    qf = query.reshape(len(query), 9)
+    for s in range(0, len(refs), chunk):
+        tr = qf @ refs[s:s + chunk].reshape(-1, 9).T  # trace(Q^T R) = sum_ij Q_ij R_ij
+        j = np.argmax(tr, axis=1)
+        v = tr[np.arange(len(query)), j]
+        better = v > best_tr
+        best_tr[better] = v[better]
+        best_idx[better] = j[better] + s
+    ang = np.arccos(np.clip((best_tr - 1.0) / 2.0, -1.0, 1.0))
+    return best_idx, ang
+
+
+def farthest_point_sampling(rots: np.ndarray, k: int, start: int = 0,
+                            candidates: np.ndarray | None = None) -> np.ndarray:
+    """Greedy farthest point sampling on SO(3) under the geodesic distance.
+
+    Args:
+        rots: (N, 3, 3) rotations.
+        k: number of samples (clamped to the pool size).
+        start: index (into the pool) of the first sample.
+        candidates: optional (M,) indices into ``rots`` restricting the pool.
+
+    Returns:
+        (k,) int64 indices into ``rots``, in selection order.
+
+    Uses traces (monotone in the angle) so each step is one (M,)
+    vector update: O(k * M).
+    """
+    pool = np.arange(len(rots)) if candidates is None else np.asarray(candidates, dtype=np.int64)
+    if len(pool) == 0:
+        return np.zeros(0, dtype=np.int64)
+    k = int(min(k, len(pool)))
+    flat = np.asarray(rots, dtype=np.float64)[pool].reshape(len(pool), 9)
+    chosen = np.empty(k, dtype=np.int64)
+    chosen[0] = start
+    # Largest trace = smallest angle to the chosen set; pick the argmin trace.
+    max_tr = flat @ flat[start]
+    for i in range(1, k):
+        j = int(np.argmin(max_tr))
+        chosen[i] = j
+        np.maximum(max_tr, flat @ flat[j], out=max_tr)
+    return pool[chosen]
+
+
+def rot_z(angle: float | np.ndarray) -> np.ndarray:
+    """Rotation(s) about the camera z (optical) axis by ``angle`` radians, (..., 3, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def inplane_rotate_label(R_m2c: np.ndarray, image_angle_deg: float | np.ndarray) -> np.ndarray:
+    """New ``R_m2c`` after rotating the image by ``image_angle_deg`` about its centre.
+
+    The angle follows OpenCV's ``getRotationMatrix2D``: positive turns the
+    picture counter-clockwise on screen. With y pointing down, that is a
+    rotation by minus the angle about the optical axis.
+    """
+    return rot_z(-np.radians(image_angle_deg)) @ R_m2c
+
+
+def symmetric_geodesic_deg(R_est: np.ndarray, R_gt: np.ndarray, symmetries: np.ndarray | None) -> np.ndarray:
+    """Symmetry-aware error in degrees: min over S of angle(R_est, R_gt @ S).
+
+    Args:
+        R_est, R_gt: (N, 3, 3).
+        symmetries: (K, 3, 3) model-frame symmetry rotations (identity should
+            be included; it is added if missing) or None for no symmetry.
+
+    Returns:
+        (N,) degrees.
+    """
+    if symmetries is None or len(symmetries) == 0:
+        return geodesic_deg(R_est, R_gt)
+    sym = np.asarray(symmetries, dtype=np.float64)
+    if not any(np.allclose(s, np.eye(3)) for s in sym):
+        sym = np.concatenate([np.eye(3)[None], sym])
+    cand = np.einsum("nij,kjl->nkil", R_gt, sym)  # (N, K, 3, 3)
+    return geodesic_deg(R_est[:, None], cand).min(axis=1)
+
+
+def discrete_symmetries_from_axis(axis: np.ndarray, order: int) -> np.ndarray:
+    """Rotations (order, 3, 3) about ``axis`` by multiples of 2*pi/order (model frame)."""
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    angles = 2 * np.pi * np.arange(order) / order
+    return Rotation.from_rotvec(angles[:, None] * axis[None]).as_matrix()
+
+
+def random_angle_within(n: int, max_deg: float, seed: int | np.random.Generator | None = 0) -> np.ndarray:
+    """Rotations (n,3,3) with uniform random axis and angle uniform in [0, max_deg]."""
+    rng = np.random.default_rng(seed)
+    axis = rng.standard_normal((n, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    ang = np.radians(rng.uniform(0, max_deg, size=n))
+    return Rotation.from_rotvec(axis * ang[:, None]).as_matrix()
