@@ -1,0 +1,312 @@
+"""Retrieve the category and rotation of a query from cached reference features.
+
+Two searches over a :class:`ReferenceBank` (K objects x R references that
+share one set of rotations):
+
+* :func:`greedy_search` scores the query against every reference (K*R pairs).
+* :func:`fast_search` is the method's Algorithm 1: score K*k_ac anchors to pick
+  the category and a start, then refine in shrinking rotation neighbourhoods,
+  scoring only fps_k farthest-point samples of each.
+
+A *scorer* is any callable ``(query (1,C,L) float32 tensor, refs (M,C,L)
+float32 tensor) -> (M,) tensor`` of similarities (higher = more similar);
+:func:`model_scorer` wraps a model's ``score`` method. Scores are computed on
+float32 copies of float16 reference chunks, one chunk at a time, so the bank
+may be memory-mapped and much larger than RAM.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .rotations import farthest_point_sampling
+
+Scorer = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+#: Neighbourhood sizes of the authors' schedule, for R = 10,000 references.
+AUTHORS_SIZES = (4096, 2048, 1024, 512)
+AUTHORS_R = 10_000
+
+
+@dataclass
+class Prediction:
+    """Result of one search.
+
+    Attributes:
+        obj_index: index of the predicted object in the bank.
+        ref_index: index of the retrieved reference (into the shared rotations).
+        score: its similarity.
+        n_comparisons: query-reference scores computed (each pair counted once).
+        R_est: (3, 3) float64 rotation of the retrieved reference (``R_m2c``).
+        obj_name: name of the predicted object.
+    """
+
+    obj_index: int
+    ref_index: int
+    score: float
+    n_comparisons: int
+    R_est: np.ndarray
+    obj_name: str = ""
+
+
+class ReferenceBank:
+    """Reference features of K objects rendered at the same R rotations.
+
+    Args:
+        feats: K arrays (R, C, L) (float16 memmaps are fine; never loaded whole).
+        rotations: (R, 3, 3) ``R_m2c`` shared by all objects.
+        names: K object names.
+        k_ac: number of anchors precomputed by farthest point sampling
+            (clamped to R); other counts are computed on first use.
+    """
+
+    def __init__(self, feats: Sequence[np.ndarray], rotations: np.ndarray, names: Sequence[str],
+                 k_ac: int = 1024):
+        rotations = np.asarray(rotations, dtype=np.float64)
+        if rotations.ndim != 3 or rotations.shape[1:] != (3, 3) or len(rotations) == 0:
+            raise ValueError(f"ReferenceBank: rotations must be (R,3,3) with R >= 1, got {rotations.shape}")
+        if len(feats) == 0 or len(feats) != len(names):
+            raise ValueError(f"ReferenceBank: got {len(feats)} feature arrays and {len(names)} names "
+                             "(expected one array per object, at least one)")
+        R = len(rotations)
+        shape0 = None
+        for name, f in zip(names, feats):
+            if f.ndim != 3 or f.shape[0] != R:
+                raise ValueError(f"ReferenceBank: features of {name!r} have shape {f.shape}, "
+                                 f"expected ({R}, C, L) to match the rotations")
+            shape0 = shape0 or f.shape[1:]
+            if f.shape[1:] != shape0:
+                raise ValueError(f"ReferenceBank: features of {name!r} are {f.shape[1:]}, others {shape0}")
+        self.feats = list(feats)
+        self.rotations = rotations
+        self.names = [str(n) for n in names]
+        self._flat = rotations.reshape(R, 9)
+        self._anchors: dict[int, np.ndarray] = {}
+        self.anchors(k_ac)
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.feats)
+
+    @property
+    def n_refs(self) -> int:
+        return len(self.rotations)
+
+    def anchors(self, k_ac: int) -> np.ndarray:
+        """(min(k_ac, R),) reference indices spread by farthest point sampling (cached)."""
+        if k_ac < 1:
+            raise ValueError(f"k_ac must be >= 1, got {k_ac}")
+        k = min(int(k_ac), self.n_refs)
+        if k not in self._anchors:
+            self._anchors[k] = farthest_point_sampling(self.rotations, k)
+        return self._anchors[k]
+
+    def nearest_refs(self, ref_index: int, k: int) -> np.ndarray:
+        """The ``k`` references closest in rotation to ``ref_index`` (itself first), nearest first.
+
+        One (R,) trace vector, O(R): cheap enough to recompute per step instead
+        of storing an R x R neighbour table.
+        """
+        k = max(1, min(int(k), self.n_refs))
+        tr = self._flat @ self._flat[ref_index]  # trace(Ri^T Rj): larger = closer
+        idx = np.argpartition(-tr, k - 1)[:k] if k < self.n_refs else np.arange(self.n_refs)
+        idx = idx[np.argsort(-tr[idx], kind="stable")]
+        # Duplicated rotations could tie with the centre: make sure it leads.
+        idx = np.concatenate([[ref_index], idx[idx != ref_index]])[:k]
+        return idx.astype(np.int64)
+
+    def ref_feats(self, obj: int, idx: np.ndarray) -> torch.Tensor:
+        """Features (M, C, L) float32 of references ``idx`` of object ``obj`` (in ``idx`` order)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        order = np.argsort(idx)  # sorted reads are sequential on a memmap
+        out = np.empty((len(idx), *self.feats[obj].shape[1:]), dtype=np.float32)
+        out[order] = self.feats[obj][idx[order]]
+        return torch.from_numpy(out)
+
+
+def model_scorer(model: Any, device: str | torch.device = "cpu", chunk: int = 1024) -> Scorer:
+    """Scorer from an object with ``score(q (Q,C,L), r (R,C,L), chunk) -> (Q,R)``.
+
+    Puts the model in eval mode (if it has ``eval``) since scores must be
+    deterministic; runs under ``torch.inference_mode``; returns CPU scores.
+    """
+    if hasattr(model, "eval"):
+        model.eval()
+
+    def scorer(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        with torch.inference_mode():
+            return model.score(q.to(device), r.to(device), chunk=chunk)[0].float().cpu()
+
+    return scorer
+
+
+def _as_query(query_feat: Any) -> torch.Tensor:
+    q = torch.as_tensor(np.asarray(query_feat) if not torch.is_tensor(query_feat) else query_feat)
+    if q.ndim == 2:
+        q = q[None]
+    if q.ndim != 3 or q.shape[0] != 1:
+        raise ValueError(f"query_feat: expected (C,L) or (1,C,L), got {tuple(q.shape)}")
+    return q.float()
+
+
+def _check_query(q: torch.Tensor, bank: ReferenceBank) -> None:
+    if tuple(q.shape[1:]) != tuple(bank.feats[0].shape[1:]):
+        raise ValueError(f"query_feat: shape (C,L)={tuple(q.shape[1:])} does not match the bank's "
+                         f"{tuple(bank.feats[0].shape[1:])}")
+
+
+def _run_scorer(scorer: Scorer, q: torch.Tensor, refs: torch.Tensor) -> np.ndarray:
+    s = scorer(q, refs)
+    s = s.detach().cpu().numpy() if torch.is_tensor(s) else np.asarray(s)
+    s = s.reshape(-1).astype(np.float64)
+    if len(s) != len(refs):
+        raise ValueError(f"scorer returned {len(s)} scores for {len(refs)} references")
+    return s
+
+
+def greedy_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, group: int = 1024) -> Prediction:
+    """Score the query against all K*R references, in groups of ``group``; return the best.
+
+    Ties go to the lowest (object, reference) index.
+    """
+    if group < 1:
+        raise ValueError(f"greedy_search: group must be >= 1, got {group}")
+    q = _as_query(query_feat)
+    _check_query(q, bank)
+    best = (-np.inf, 0, 0)
+    for o, f in enumerate(bank.feats):
+        for s in range(0, bank.n_refs, group):
+            refs = torch.from_numpy(np.asarray(f[s:s + group], dtype=np.float32))
+            sc = _run_scorer(scorer, q, refs)
+            j = int(np.argmax(sc))
+            if sc[j] > best[0]:
+                best = (float(sc[j]), o, s + j)
+    score, o, r = best
+    return Prediction(o, r, score, bank.n_objects * bank.n_refs, bank.rotations[r].copy(), bank.names[o])
+
+
+class _ScoreCache:
+    """Scores of one query, each (object, reference) pair computed at most once.
+
+    One (R,) float64 array per object, NaN = not scored yet (allocated on first use).
+    """
+
+    def __init__(self, q: torch.Tensor, bank: ReferenceBank, scorer: Scorer, group: int):
+        self.q, self.bank, self.scorer, self.group = q, bank, scorer, group
+        self.scores: list[np.ndarray | None] = [None] * bank.n_objects
+        self.n_comparisons = 0
+
+    def __call__(self, obj: int, idx: np.ndarray) -> np.ndarray:
+        if self.scores[obj] is None:
+            self.scores[obj] = np.full(self.bank.n_refs, np.nan)
+        d = self.scores[obj]
+        new = np.unique(idx[np.isnan(d[idx])])
+        for s in range(0, len(new), self.group):
+            part = new[s:s + self.group]
+            d[part] = _run_scorer(self.scorer, self.q, self.bank.ref_feats(obj, part))
+        if np.isnan(d[new]).any():
+            raise ValueError("scorer returned NaN scores")
+        self.n_comparisons += len(new)
+        return d[idx]
+
+
+def authors_sizes(n_refs: int) -> list[int]:
+    """Neighbourhood sizes of the authors' schedule for ``n_refs`` references.
+
+    4096, 2048, 1024, 512 at R = 10,000. For smaller R they are scaled by
+    R / 10,000 (so each neighbourhood covers the same fraction of SO(3)), and
+    always clamped to [1, R].
+    """
+    scale = min(1.0, n_refs / AUTHORS_R)
+    return [int(min(n_refs, max(1, round(s * scale)))) for s in AUTHORS_SIZES]
+
+
+def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int = 1024, fps_k: int = 256,
+                schedule: str = "converge", top_anchors: int = 3, group: int = 1024,
+                max_moves_per_level: int = 20) -> Prediction:
+    """Algorithm 1 of the method: anchors pick the category, then local refinement.
+
+    1. Score the ``k_ac`` FPS anchors of every object; the category is the
+       object with the best mean of its ``top_anchors`` best anchor scores;
+       start at that object's best anchor.
+    2. Refine within that object, always keeping the best reference seen:
+
+       * ``"authors"`` (the published code): for k in :func:`authors_sizes`
+         (4096, 2048, 1024, 512 at R=10,000), take the k references nearest
+         to the current best, pick ``fps_k`` of them by FPS starting from the
+         current best (all of them if k <= fps_k), score, move to the best.
+       * ``"converge"`` (the paper's text): neighbourhood sizes floor(R/2^j),
+         j = 1, 2, ...; at each size, sample/score/move repeatedly until the
+         best stops changing (at most ``max_moves_per_level`` moves), then halve.
+         Once the neighbourhood has at most ``fps_k`` references, all of it is
+         scored (again until the best stops moving) and the search stops.
+
+    Scores are cached per query, so a reference is never scored twice and
+    ``n_comparisons`` counts distinct pairs.
+    """
+    if schedule not in ("converge", "authors"):
+        raise ValueError(f"fast_search: schedule must be 'converge' or 'authors', got {schedule!r}")
+    if fps_k < 1 or top_anchors < 1:
+        raise ValueError(f"fast_search: fps_k and top_anchors must be >= 1, got {fps_k}, {top_anchors}")
+    q = _as_query(query_feat)
+    _check_query(q, bank)
+    score = _ScoreCache(q, bank, scorer, group)
+
+    anchors = bank.anchors(k_ac)
+    anchor_scores = np.stack([score(o, anchors) for o in range(bank.n_objects)])  # (K, A)
+    top = min(top_anchors, len(anchors))
+    cat_score = -np.sort(-anchor_scores, axis=1)[:, :top].mean(axis=1)
+    obj = int(np.argmax(cat_score))
+    j0 = int(np.argmax(anchor_scores[obj]))
+    best, best_score = int(anchors[j0]), float(anchor_scores[obj, j0])
+
+    def step(k: int) -> bool:
+        """Sample the k-neighbourhood of the best, score, move; True if the best moved."""
+        nonlocal best, best_score
+        pool = bank.nearest_refs(best, k)
+        cand = pool if len(pool) <= fps_k else farthest_point_sampling(bank.rotations, fps_k, start=0,
+                                                                       candidates=pool)
+        s = score(obj, cand)
+        j = int(np.argmax(s))
+        if s[j] > best_score:
+            best, best_score = int(cand[j]), float(s[j])
+            return True
+        return False
+
+    R = bank.n_refs
+    if schedule == "authors":
+        for k in authors_sizes(R):
+            step(k)
+    else:
+        j = 1
+        while True:
+            k = max(1, R >> j)
+            for _ in range(max_moves_per_level):
+                if not step(k):
+                    break
+            if k <= fps_k:
+                break
+            j += 1
+    return Prediction(obj, best, best_score, score.n_comparisons, bank.rotations[best].copy(), bank.names[obj])
+
+
+def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, method: str = "greedy",
+               progress: bool = True, **kwargs: Any) -> list[Prediction]:
+    """Run :func:`greedy_search` or :func:`fast_search` for each of N queries (N, C, L).
+
+    ``kwargs`` go to the search function (e.g. ``group``, ``k_ac``, ``schedule``).
+    """
+    fns = {"greedy": greedy_search, "fast": fast_search}
+    if method not in fns:
+        raise ValueError(f"search_all: method must be one of {sorted(fns)}, got {method!r}")
+    if getattr(query_feats, "ndim", None) != 3:
+        raise ValueError(f"search_all: query_feats must be (N,C,L), got shape {getattr(query_feats, 'shape', None)}")
+    fn = fns[method]
+    return [fn(query_feats[i], bank, scorer, **kwargs)
+            for i in tqdm(range(len(query_feats)), desc=f"{method} search", unit="query", disable=not progress)]

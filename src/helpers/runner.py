@@ -1,0 +1,114 @@
+"""Batch runner: execute the study's notebooks with a named preset via papermill.
+
+    python -m helpers.runner quick            # all notebooks, quick preset
+    python -m helpers.runner smoke --only 01_render 02_train
+
+For each notebook it loads ``presets/<preset>/<notebook>.yaml`` (absent = the
+notebook's own defaults, which are the smoke preset), refuses unknown or
+mistyped parameters before anything runs, points ``out_dir`` at
+``reports/<preset>/<notebook>``, executes the notebook into
+``reports/<preset>/<notebook>.ipynb``, exports HTML beside it, and finally
+builds ``reports/<preset>/REPORT.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+from .fileio import atomic_write_json
+from .params import NOTEBOOK_DIR, ParameterError, check_mapping, declared_parameters
+from .paths import REPO_ROOT
+
+PRESET_DIR = REPO_ROOT / "presets"
+PRESETS = ("smoke", "quick", "paper")
+
+
+def notebooks() -> list[str]:
+    """Notebook names in run order (file name order)."""
+    return sorted(p.stem for p in NOTEBOOK_DIR.glob("[0-9][0-9]_*.ipynb"))
+
+
+def preset_parameters(preset: str, notebook: str) -> dict:
+    """Validated parameters of ``notebook`` under ``preset`` (out_dir set by preset)."""
+    if preset not in PRESETS:
+        raise ParameterError(f"preset must be one of {PRESETS}, got {preset!r}")
+    declared = declared_parameters(NOTEBOOK_DIR / f"{notebook}.ipynb")
+    f = PRESET_DIR / preset / f"{notebook}.yaml"
+    given = {}
+    if f.exists():
+        given = yaml.safe_load(f.read_text()) or {}
+        if not isinstance(given, dict):
+            raise ParameterError(f"{f}: expected a mapping of parameter names to values")
+    given.setdefault("out_dir", f"reports/{preset}/{notebook}")
+    try:
+        return check_mapping(notebook, declared, given)
+    except ParameterError as e:
+        raise ParameterError(f"{f if f.exists() else 'preset ' + preset}: {e}") from None
+
+
+def run(preset: str, only: list[str] | None = None, html: bool = True, report: bool = True) -> Path:
+    """Run the notebooks of ``preset``; returns the report folder."""
+    import papermill as pm
+
+    names = notebooks()
+    if only:
+        unknown = sorted(set(only) - set(names))
+        if unknown:
+            raise ParameterError(f"--only: unknown notebook(s) {unknown}; available: {names}")
+        names = [n for n in names if n in only]
+    params = {n: preset_parameters(preset, n) for n in names}  # validate everything first
+    out = REPO_ROOT / "reports" / preset
+    out.mkdir(parents=True, exist_ok=True)
+    timings = {}
+    for n in names:
+        t0 = time.perf_counter()
+        print(f"[runner] {preset}: {n}", flush=True)
+        dst = out / f"{n}.ipynb"
+        pm.execute_notebook(str(NOTEBOOK_DIR / f"{n}.ipynb"), str(dst), parameters=params[n],
+                            cwd=str(NOTEBOOK_DIR), progress_bar=True, kernel_name="python3")
+        if html:
+            export_html(dst)
+        timings[n] = time.perf_counter() - t0
+        atomic_write_json(out / "timings.json", timings)
+    if report:
+        from .report import build_report
+
+        build_report(preset)
+    return out
+
+
+def export_html(nb_path: Path) -> Path:
+    """Executed notebook -> HTML beside it."""
+    import nbformat
+    from nbconvert import HTMLExporter
+
+    body, _ = HTMLExporter().from_notebook_node(nbformat.read(str(nb_path), as_version=4))
+    dst = nb_path.with_suffix(".html")
+    dst.write_text(body, encoding="utf-8")
+    return dst
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m helpers.runner", description=__doc__.split("\n\n")[0])
+    ap.add_argument("preset", choices=PRESETS)
+    ap.add_argument("--only", nargs="*", help="notebook names to run (default: all)")
+    ap.add_argument("--no-html", action="store_true")
+    ap.add_argument("--no-report", action="store_true")
+    a = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    try:
+        out = run(a.preset, a.only, html=not a.no_html, report=not a.no_report)
+    except ParameterError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"[runner] done in {time.perf_counter() - t0:.0f} s; report: {out / 'REPORT.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,235 @@
+"""The study's shared plumbing: data of a preset, train-or-load, evaluate.
+
+Every notebook goes through here so the same preset parameters always give
+the same rendered sets, the same trained models (content-hashed run folders
+under ``<cache>/runs``) and the same cached reference features.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+
+from .datasets import ViewSetSpec, render_sets
+from .device import resolve_device
+from .features import FeatureCache, encode_views, model_fingerprint
+from .fileio import atomic_write_json, read_json, stable_hash
+from .manifest import Manifest, load_manifest
+from .metrics import Record, per_query_table, summarise_queries
+from .paths import cache_dir
+from .render import QueryStyle, RenderConfig
+from .retrieval import ReferenceBank, model_scorer, search_all
+from .views import ObjectViews
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Sizes of the rendered benchmark.
+
+    Attributes:
+        image_size: crop side fed to the network, pixels.
+        render_size: internal render side, pixels.
+        n_references: references per object (shared Haar-uniform rotations).
+        n_train_queries: real-like training queries per benchmark object.
+        n_val_queries: held-out real-like views per benchmark object (model selection
+            on SEEN objects only).
+        n_test_queries: test queries per object (test background photos).
+        occlusion_fraction: (min, max) silhouette fraction hidden in the occluded
+            (LM-O-like) test set, where every query is occluded.
+        seed: base seed.
+        workers: rendering processes.
+        cache_dir: cache root ("" = default).
+    """
+
+    image_size: int = 64
+    render_size: int = 96
+    n_references: int = 48
+    n_train_queries: int = 16
+    n_val_queries: int = 4
+    n_test_queries: int = 4
+    occlusion_fraction: tuple[float, float] = (0.2, 0.5)
+    seed: int = 0
+    workers: int = 2
+    cache_dir: str = ""
+
+    def render_config(self) -> RenderConfig:
+        return RenderConfig(size=self.image_size, render_size=self.render_size)
+
+
+@dataclass
+class StudyData:
+    """All view sets of a preset, by object name."""
+
+    cfg: DataConfig
+    manifest: Manifest
+    refs: dict[str, ObjectViews] = field(default_factory=dict)
+    train_q: dict[str, ObjectViews] = field(default_factory=dict)
+    val_q: dict[str, ObjectViews] = field(default_factory=dict)
+    test_q: dict[str, ObjectViews] = field(default_factory=dict)
+    occluded_q: dict[str, ObjectViews] = field(default_factory=dict)
+
+    def key(self, name: str, kind: str = "refs") -> str:
+        return getattr(self, kind)[name].meta["key"]
+
+
+def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bool = True,
+                 manifest: Manifest | None = None) -> StudyData:
+    """Render (or load) references and queries of ``objects`` (default: all).
+
+    Training and validation queries are rendered only for benchmark (``train``
+    role) objects; test and occluded queries use the test background photos.
+    """
+    m = manifest or load_manifest()
+    names = objects or m.object_names()
+    bench = set(m.object_names("train"))
+    rc = cfg.render_config()
+    plain = QueryStyle()
+    occ = QueryStyle(occlusion=1.0, occlusion_fraction=tuple(cfg.occlusion_fraction))
+    plan: list[tuple[str, str, ViewSetSpec]] = []
+    for n in names:
+        plan.append(("refs", n, ViewSetSpec(n, "reference", cfg.n_references, cfg.seed, rc)))
+        if n in bench:
+            plan.append(("train_q", n, ViewSetSpec(n, "query", cfg.n_train_queries, cfg.seed, rc, plain, "train")))
+            plan.append(("val_q", n, ViewSetSpec(n, "query", cfg.n_val_queries, cfg.seed + 1, rc, plain, "train")))
+        plan.append(("test_q", n, ViewSetSpec(n, "query", cfg.n_test_queries, cfg.seed + 2, rc, plain, "test")))
+        if occluded:
+            plan.append(("occluded_q", n, ViewSetSpec(n, "query", cfg.n_test_queries, cfg.seed + 3, rc, occ, "test")))
+    sets = render_sets([p[2] for p in plan], cache=cfg.cache_dir or None, workers=cfg.workers, manifest=m)
+    data = StudyData(cfg, m)
+    for (kind, n, _), vs in zip(plan, sets):
+        getattr(data, kind)[n] = vs
+    return data
+
+
+# ------------------------------------------------------------------ training
+
+def _val_refs(refs: ObjectViews, n: int) -> ObjectViews:
+    """A spread-out subset of references for cheap validation retrieval."""
+    from .rotations import farthest_point_sampling
+
+    if len(refs) <= n:
+        return refs
+    return refs.subset(np.sort(farthest_point_sampling(refs.rotations.astype(np.float64), n)))
+
+
+def train_or_load(split: int, model_cfg: Any, train_cfg: Any, data: StudyData, val_refs_per_object: int = 256,
+                  progress: bool = True) -> tuple[torch.nn.Module, Path, dict]:
+    """Train on the seen objects of LineMOD-like ``split``, or load the finished run.
+
+    The run folder ``<cache>/runs/<hash>`` is keyed by the model and training
+    configs, the split and the render keys of every set used, so a finished
+    run is reused by any notebook that asks for the same thing, and an
+    interrupted one resumes from its last checkpoint.
+
+    Returns:
+        (model in eval mode on its device, run folder, history dict).
+    """
+    from .train import load_model, train
+
+    seen = data.manifest.seen_objects(split)
+    missing = [n for n in seen if n not in data.train_q]
+    if missing:
+        raise ValueError(f"train_or_load: no training queries rendered for {missing}; prepare_data with them")
+    key = stable_hash({"split": split, "model": model_cfg.to_dict(), "train": _cfg_dict(train_cfg),
+                       "refs": [data.key(n) for n in seen], "train_q": [data.key(n, "train_q") for n in seen],
+                       "val_q": [data.key(n, "val_q") for n in seen], "val_refs": val_refs_per_object})
+    run = cache_dir(data.cfg.cache_dir or None) / "runs" / f"split{split}-{key}"
+    done = run / "done.json"
+    if not done.exists():
+        t0 = time.perf_counter()
+        res = train(train_cfg, {n: data.refs[n] for n in seen}, {n: data.train_q[n] for n in seen},
+                    {n: _val_refs(data.refs[n], val_refs_per_object) for n in seen},
+                    {n: data.val_q[n] for n in seen}, run, resume=True)
+        atomic_write_json(done, {"split": split, "seen": seen, "seconds_this_session": time.perf_counter() - t0,
+                                 "best": str(res.best_path), "train_images_per_s": res.train_images_per_s})
+    info = read_json(done)
+    model, _ = load_model(run / "best.pt", device=getattr(train_cfg, "device", "auto"))
+    model.eval()
+    history = read_json(run / "history.json") if (run / "history.json").exists() else {}
+    return model, run, {"history": history, **info}
+
+
+def _cfg_dict(cfg: Any) -> dict:
+    if hasattr(cfg, "to_dict"):
+        return cfg.to_dict()
+    d = asdict(cfg)
+    return d
+
+
+# ------------------------------------------------------------------ evaluation
+
+def reference_bank(model: Any, data: StudyData, objects: list[str], device: str = "auto", k_ac: int = 1024,
+                   n_refs: int | None = None, batch: int = 64, progress: bool = True) -> ReferenceBank:
+    """Encode (once, cached as float16 memmaps) the references of ``objects``.
+
+    ``n_refs`` keeps only the first n references (still Haar-uniform).
+    """
+    dev = resolve_device(device)
+    fc = FeatureCache(cache_dir(data.cfg.cache_dir or None) / "features")
+    mkey = model_fingerprint(model)
+    feats = [fc.get_or_build(model, mkey, data.refs[n], data.key(n), batch=batch, device=dev, progress=progress)
+             for n in objects]
+    rot = data.refs[objects[0]].rotations
+    for n in objects[1:]:
+        if not np.array_equal(data.refs[n].rotations, rot):
+            raise ValueError(f"reference rotations of {n!r} differ from {objects[0]!r}; render them with one seed")
+    if n_refs is not None:
+        feats = [f[:n_refs] for f in feats]
+        rot = rot[:n_refs]
+    return ReferenceBank(feats, rot, objects, k_ac=k_ac)
+
+
+def encode_queries(model: Any, views: ObjectViews, device: str = "auto", batch: int = 64) -> torch.Tensor:
+    """(N, C, L) float32 features of query views."""
+    dev = resolve_device(device)
+    parts = list(encode_views(model, views.images, batch=batch, device=dev))
+    return torch.cat(parts) if parts else torch.zeros(0)
+
+
+def evaluate(model: Any, bank: ReferenceBank, queries: dict[str, ObjectViews], method: str = "greedy",
+             device: str = "auto", threshold_deg: float = 30.0, progress: bool = True,
+             **search_kw: Any) -> dict[str, Any]:
+    """Retrieve every query of ``queries`` in ``bank`` and score the predictions.
+
+    Returns:
+        {"per_object": DataFrame, "means": dict, "per_query": DataFrame,
+         "seconds_per_query": [...], "comparisons": [...]}.
+    """
+    dev = resolve_device(device)
+    scorer = model_scorer(model, dev)
+    records, secs, comps = [], [], []
+    for name, views in queries.items():
+        q = encode_queries(model, views, device)
+        for i in range(len(q)):
+            t0 = time.perf_counter()
+            pred = search_all(q[i:i + 1], bank, scorer, method=method, progress=False, **search_kw)[0]
+            secs.append(time.perf_counter() - t0)
+            comps.append(pred.n_comparisons)
+            records.append(Record(name, pred.obj_name, np.asarray(views.rotations[i], dtype=np.float64), pred.R_est,
+                                  views.symmetries, f"{name}:{i}"))
+    per_query = per_query_table(records, threshold_deg)
+    per_object, means = summarise_queries(per_query)
+    return {"per_object": per_object, "means": means, "per_query": per_query,
+            "seconds_per_query": secs, "comparisons": comps, "records": records}
+
+
+def split_of(manifest: Manifest) -> dict[str, str]:
+    """Object -> "1"/"2"/"3"/"held-out"."""
+    return {o.name: (str(o.split) if o.split else "held-out") for o in manifest.objects}
+
+
+def summary_row(label: str, res: dict[str, Any]) -> dict[str, Any]:
+    m = res["means"]
+    return {"setting": label, "class_acc": m.get("class_acc"), "rot_acc": m.get("rot_acc"),
+            "median_err_deg": m.get("median_err_deg"), "n_queries": int(res["per_object"]["n"].sum()),
+            "s_per_query": float(np.median(res["seconds_per_query"])) if res["seconds_per_query"] else None}
+
+
+def to_frame(rows: list[dict]) -> pd.DataFrame:
+    return pd.DataFrame(rows)

@@ -1,0 +1,103 @@
+"""Reference feature cache with a tiny fake model."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from helpers.features import FeatureCache, encode_views, model_fingerprint
+from helpers.views import ObjectViews
+
+
+class FakeModel(torch.nn.Module):
+    """encode: 4x4 average pooling of each channel -> (B, 3, L) unit vectors per location."""
+
+    def __init__(self, fail_after: int | None = None):
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.ones(1))
+        self.config = {"pool": 4}
+        self.calls = 0
+        self.fail_after = fail_after
+
+    def encode(self, x: torch.Tensor) -> torch.Tensor:
+        self.calls += 1
+        if self.fail_after is not None and self.calls > self.fail_after:
+            raise KeyboardInterrupt("simulated interruption")
+        f = torch.nn.functional.avg_pool2d(x, 4).flatten(2) * self.w + 0.01
+        return f / f.norm(dim=1, keepdim=True)
+
+
+def _views(n=10, s=16, seed=0) -> ObjectViews:
+    rng = np.random.default_rng(seed)
+    return ObjectViews("toy", rng.integers(0, 256, (n, s, s, 3), dtype=np.uint8),
+                       np.tile(np.eye(3, dtype=np.float32), (n, 1, 1)))
+
+
+def _reference(model, views) -> np.ndarray:
+    return torch.cat(list(encode_views(model, views.images, batch=3))).numpy()
+
+
+def test_encode_views_batches():
+    v = _views(7)
+    model = FakeModel()
+    parts = list(encode_views(model, v.images, batch=3))
+    assert [p.shape[0] for p in parts] == [3, 3, 1] and parts[0].shape[1:] == (3, 16)
+    assert parts[0].dtype == torch.float32
+    with pytest.raises(ValueError, match="uint8"):
+        next(encode_views(model, v.images.astype(np.float32)))
+
+
+def test_roundtrip_and_cached(tmp_path):
+    v = _views(10)
+    model = FakeModel()
+    cache = FeatureCache(tmp_path)
+    out = cache.get_or_build(model, "m1", v, "toyset", batch=4, progress=False)
+    assert isinstance(out, np.memmap) and out.dtype == np.float16 and out.shape == (10, 3, 16)
+    assert not out.flags.writeable
+    np.testing.assert_allclose(out.astype(np.float32), _reference(FakeModel(), v), atol=1e-3)
+    meta = json.loads((tmp_path / "m1" / "toyset.json").read_text())
+    assert meta["complete"] and meta["done"] == 10 and meta["shape"] == [10, 3, 16]
+    assert not list((tmp_path / "m1").glob(".*partial"))
+
+    calls = model.calls
+    again = cache.get_or_build(model, "m1", v, "toyset", batch=4, progress=False)
+    assert model.calls == calls  # nothing re-encoded
+    np.testing.assert_array_equal(again, out)
+    # Same key, different views: refuse instead of returning wrong features.
+    with pytest.raises(ValueError, match="different views"):
+        cache.get_or_build(model, "m1", _views(10, seed=1), "toyset", progress=False)
+    with pytest.raises(ValueError, match="refset_key"):
+        cache.get_or_build(model, "m1", v, "../evil", progress=False)
+
+
+def test_resume_after_interruption(tmp_path):
+    v = _views(10)
+    cache = FeatureCache(tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        cache.get_or_build(FakeModel(fail_after=2), "m1", v, "toyset", batch=3, progress=False)
+    final, side, tmp = cache.paths("m1", "toyset")
+    assert not final.exists() and tmp.exists()
+    meta = json.loads(side.read_text())
+    assert meta["done"] == 6 and not meta["complete"]
+    assert cache.load("m1", "toyset") is None
+
+    model = FakeModel()
+    out = cache.get_or_build(model, "m1", v, "toyset", batch=3, progress=False)
+    assert model.calls == 2  # images 6..9 only: two batches of 3 and 1
+    np.testing.assert_allclose(out.astype(np.float32), _reference(FakeModel(), v), atol=1e-3)
+    assert final.exists() and not tmp.exists()
+
+
+def test_fingerprint():
+    a, b = FakeModel(), FakeModel()
+    assert model_fingerprint(a) == model_fingerprint(b)
+    with torch.no_grad():
+        b.w.add_(1e-6)
+    assert model_fingerprint(a) != model_fingerprint(b)
+    c = FakeModel()
+    c.config = {"pool": 2}
+    assert model_fingerprint(a) != model_fingerprint(c)
+    assert len(model_fingerprint(a)) == 16

@@ -1,0 +1,153 @@
+"""Greedy and fast retrieval on synthetic features whose scores are known in closed form."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from helpers.retrieval import (ReferenceBank, authors_sizes, fast_search, greedy_search, model_scorer,
+                               search_all)
+from helpers.rotations import geodesic_deg, haar_uniform, nearest
+
+
+def cosine_scorer(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """Mean over locations of the per-location cosine, (M,)."""
+    qn = q / q.norm(dim=1, keepdim=True)
+    rn = r / r.norm(dim=1, keepdim=True)
+    return (qn * rn).sum(1).mean(-1)
+
+
+OBJ_PENALTY = 0.3
+
+
+def rotation_scorer(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """Smooth synthetic score: cos(geodesic angle) minus a penalty when the object code differs.
+
+    Features are (9 + K, 1): the flattened rotation, then a one-hot object code.
+    trace(Rq^T Rr) = 1 + 2 cos(angle).
+    """
+    tr = (q[:, :9, 0] * r[:, :9, 0]).sum(1)
+    same = (q[:, 9:, 0] * r[:, 9:, 0]).sum(1)
+    return (tr - 1) / 2 - OBJ_PENALTY * (1 - same)
+
+
+def synthetic_feats(rots: np.ndarray, obj: int, n_obj: int, dtype=np.float32) -> np.ndarray:
+    """(N, 9 + K, 1) features of rotations ``rots`` for object ``obj``."""
+    f = np.zeros((len(rots), 9 + n_obj, 1), dtype)
+    f[:, :9, 0] = rots.reshape(-1, 9)
+    f[:, 9 + obj, 0] = 1
+    return f
+
+
+def synthetic_bank(n_obj: int, n_refs: int, dtype=np.float32, k_ac: int = 1024, seed: int = 0) -> ReferenceBank:
+    rots = haar_uniform(n_refs, seed=seed)
+    feats = [synthetic_feats(rots, k, n_obj, dtype) for k in range(n_obj)]
+    return ReferenceBank(feats, rots, [f"obj{k}" for k in range(n_obj)], k_ac=k_ac)
+
+
+def test_exact_reference_found():
+    rng = np.random.default_rng(0)
+    R = 300
+    feats = [rng.standard_normal((R, 8, 5)).astype(np.float16) for _ in range(3)]
+    bank = ReferenceBank(feats, haar_uniform(R, seed=1), ["a", "b", "c"], k_ac=50)
+    p = greedy_search(torch.from_numpy(feats[2][17].astype(np.float32)), bank, cosine_scorer, group=64)
+    assert (p.obj_index, p.ref_index, p.obj_name) == (2, 17, "c")
+    assert p.score == pytest.approx(1.0, abs=1e-5) and p.n_comparisons == 3 * R
+    assert np.allclose(p.R_est, bank.rotations[17])
+    # A query equal to an anchor is found by the fast search too (whatever the feature geometry).
+    a = int(bank.anchors(50)[7])
+    pf = fast_search(feats[1][a].astype(np.float32)[None], bank, cosine_scorer, k_ac=50, fps_k=16)
+    assert (pf.obj_index, pf.ref_index) == (1, a) and pf.score == pytest.approx(1.0, abs=1e-5)
+
+
+def test_fast_equals_greedy_on_smooth_scores():
+    K, R = 4, 2000
+    bank = synthetic_bank(K, R, k_ac=64)
+    truths = haar_uniform(25, seed=5)
+    objs = np.arange(25) % K
+    queries = np.stack([synthetic_feats(truths[i:i + 1], objs[i], K)[0] for i in range(25)])
+    greedy = search_all(queries, bank, rotation_scorer, method="greedy", progress=False, group=512)
+    fast = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=64, fps_k=32)
+    nn_idx, _ = nearest(truths, bank.rotations)
+    for i, (g, f) in enumerate(zip(greedy, fast)):
+        assert g.obj_index == objs[i] and g.ref_index == nn_idx[i]  # greedy = true nearest reference
+        assert (f.obj_index, f.ref_index) == (g.obj_index, g.ref_index), f"query {i}"
+        assert g.n_comparisons == K * R
+        # Anchors of every object, plus a few levels of at most fps_k each.
+        assert K * 64 < f.n_comparisons < K * 64 + 12 * 32
+    # The authors' fixed schedule lands close to greedy (not necessarily on it).
+    auth = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=64, fps_k=32,
+                      schedule="authors")
+    err = geodesic_deg(np.stack([a.R_est for a in auth]), np.stack([g.R_est for g in greedy]))
+    assert all(a.obj_index == g.obj_index for a, g in zip(auth, greedy))
+    assert np.median(err) < 25
+    assert all(a.n_comparisons <= K * 64 + 4 * 32 for a in auth)
+
+
+def test_comparisons_not_double_counted():
+    calls = []
+
+    def counting(q, r):
+        calls.append(len(r))
+        return rotation_scorer(q, r)
+
+    bank = synthetic_bank(3, 500, k_ac=40)
+    q = synthetic_feats(haar_uniform(1, seed=9), 1, 3)[0]
+    p = fast_search(q, bank, counting, k_ac=40, fps_k=20)
+    assert sum(calls) == p.n_comparisons
+    # All references already anchors: nothing left to refine beyond them.
+    p_all = fast_search(q, bank, rotation_scorer, k_ac=500)
+    assert p_all.n_comparisons == 3 * 500
+
+
+def test_authors_sizes():
+    assert authors_sizes(10_000) == [4096, 2048, 1024, 512]
+    assert authors_sizes(20_000) == [4096, 2048, 1024, 512]
+    assert authors_sizes(1000) == [410, 205, 102, 51]
+    assert authors_sizes(3) == [1, 1, 1, 1]
+
+
+def test_bad_inputs():
+    bank = synthetic_bank(2, 50, k_ac=10)
+    with pytest.raises(ValueError, match="does not match the bank"):
+        greedy_search(np.zeros((5, 1), np.float32), bank, rotation_scorer)
+    with pytest.raises(ValueError, match="schedule"):
+        fast_search(np.zeros((11, 1), np.float32), bank, rotation_scorer, schedule="nope")
+    with pytest.raises(ValueError, match="expected .50, C, L."):
+        ReferenceBank([np.zeros((49, 11, 1))], bank.rotations, ["x"])
+    with pytest.raises(ValueError, match="method"):
+        search_all(np.zeros((1, 11, 1)), bank, rotation_scorer, method="slow")
+
+
+def test_model_scorer_duck_typed():
+    class Fake:
+        def score(self, q, r, chunk=1024):
+            return rotation_scorer(q.expand(len(r), -1, -1), r)[None]
+
+    bank = synthetic_bank(2, 100, k_ac=20)
+    q = synthetic_feats(bank.rotations[42:43], 1, 2)[0]
+    p = greedy_search(q, bank, model_scorer(Fake()))
+    assert (p.obj_index, p.ref_index) == (1, 42)
+
+
+def test_fast_scales_to_13_objects_10k_refs():
+    K, R = 13, 10_000
+    t0 = time.perf_counter()
+    bank = synthetic_bank(K, R, dtype=np.float16)
+    t_bank = time.perf_counter() - t0
+    truths = haar_uniform(5, seed=11)
+    queries = np.stack([synthetic_feats(truths[i:i + 1], i % K, K)[0] for i in range(5)])
+    t0 = time.perf_counter()
+    preds = search_all(queries, bank, rotation_scorer, method="fast", progress=False)
+    t_q = (time.perf_counter() - t0) / len(queries)
+    nn_idx, nn_ang = nearest(truths, bank.rotations)
+    for i, p in enumerate(preds):
+        assert p.obj_index == i % K
+        assert geodesic_deg(p.R_est, truths[i]) < np.degrees(nn_ang[i]) + 3
+        assert p.n_comparisons < K * 1024 + 2000  # vs K*R = 130,000 for greedy
+    print(f"\nbank build {t_bank:.2f} s; fast_search {1000 * t_q:.0f} ms/query, "
+          f"{np.mean([p.n_comparisons for p in preds]):.0f} comparisons/query")
+    assert t_q < 2.0
