@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import pandas as pd
 
-from .datasets import ViewSetSpec, render_sets
 from .fileio import atomic_write_json
 from .figures import view_grid
 from .manifest import load_manifest, verify
-from .render import QueryStyle, RenderConfig
+from .study import DataConfig, prepare_data
 from .tables import write_table
 
 
@@ -44,40 +44,36 @@ def object_table(manifest=None) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def run_render_stage(objects: list[str] | str, n_references: int, n_queries: int, image_size: int, render_size: int,
-                     seed: int, occlusion: float, workers: int, cache_dir: str | None, out_dir: Path,
-                     n_show: int = 4) -> dict:
-    """Render references, training queries and test queries for ``objects``.
+def run_render_stage(cfg: DataConfig, out_dir: Path, n_show: int = 4) -> dict:
+    """Render (or load) every view set the study needs and show them.
 
-    Writes into ``out_dir``: objects.csv/.md (the manifest), views.png (a grid
-    of references / train queries / test queries), render_summary.json.
-    Returns the summary dict.
+    Writes into ``out_dir``: objects.csv/.md (the manifest), views.png (per
+    object: references, training queries, test queries, occluded test
+    queries), render_summary.json. Returns the summary dict.
     """
     m = load_manifest()
     t0 = time.perf_counter()
     verify(m)
     t_verify = time.perf_counter() - t0
-    names = resolve_objects(objects, m)
-    rc = RenderConfig(size=image_size, render_size=render_size)
-    specs = []
-    for n in names:
-        specs.append(ViewSetSpec(n, "reference", n_references, seed, rc))
-        specs.append(ViewSetSpec(n, "query", n_queries, seed, rc, QueryStyle(occlusion=occlusion), "train"))
-        specs.append(ViewSetSpec(n, "query", n_queries, seed + 1, rc, QueryStyle(occlusion=occlusion), "test"))
     t0 = time.perf_counter()
-    sets = render_sets(specs, cache=cache_dir or None, workers=workers, manifest=m)
+    data = prepare_data(cfg, manifest=m)
     t_render = time.perf_counter() - t0
     write_table(object_table(m), out_dir / "objects")
-    rows = {n: sets[3 * i:3 * i + 3] for i, n in enumerate(names)}
-    view_grid(rows, n_show, out_dir / "views.png", titles=["references", "train queries", "test queries"])
-    ref_bytes = sum(s.meta["bytes"] for s in sets if s.kind == "reference")
+    rows = {}
+    for n in m.object_names():
+        rows[n] = [data.refs[n], data.train_q.get(n, data.test_q[n]), data.test_q[n], data.occluded_q[n]]
+    view_grid(rows, n_show, out_dir / "views.png",
+              titles=["references", "train queries (held-out objects: test)", "test queries", "occluded test queries"])
+    sets = [vs for kind in ("refs", "train_q", "val_q", "test_q", "occluded_q") for vs in getattr(data, kind).values()]
+    ref_bytes = sum(v.meta["bytes"] for v in data.refs.values())
+    n_obj = len(data.refs)
     summary = {
-        "objects": names, "n_references": n_references, "n_queries": n_queries, "image_size": image_size,
+        "data_config": asdict(cfg), "objects": list(data.refs), "views": sum(len(s) for s in sets),
         "verify_seconds": t_verify, "render_or_load_seconds": t_render,
-        "views": sum(len(s) for s in sets),
-        "reference_bytes_per_object": ref_bytes / max(1, len(names)),
-        "reference_bytes_per_10000_per_object": ref_bytes / max(1, len(names)) / n_references * 10000,
-        "cache_keys": {f"{s.name}/{s.kind}/{s.meta.get('background_split') or '-'}": s.meta["key"] for s in sets},
+        "reference_bytes_per_object": ref_bytes / n_obj,
+        "reference_bytes_per_10000_per_object": ref_bytes / n_obj / cfg.n_references * 10000,
+        "cache_keys": {f"{kind}/{n}": vs.meta["key"] for kind in ("refs", "train_q", "val_q", "test_q", "occluded_q")
+                       for n, vs in getattr(data, kind).items()},
     }
     atomic_write_json(out_dir / "render_summary.json", summary)
     return summary

@@ -118,8 +118,8 @@ def _val_refs(refs: ObjectViews, n: int) -> ObjectViews:
     return refs.subset(np.sort(farthest_point_sampling(refs.rotations.astype(np.float64), n)))
 
 
-def train_or_load(split: int, model_cfg: Any, train_cfg: Any, data: StudyData, val_refs_per_object: int = 256,
-                  progress: bool = True) -> tuple[torch.nn.Module, Path, dict]:
+def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_object: int = 256
+                  ) -> tuple[torch.nn.Module, Path, dict]:
     """Train on the seen objects of LineMOD-like ``split``, or load the finished run.
 
     The run folder ``<cache>/runs/<hash>`` is keyed by the model and training
@@ -136,7 +136,7 @@ def train_or_load(split: int, model_cfg: Any, train_cfg: Any, data: StudyData, v
     missing = [n for n in seen if n not in data.train_q]
     if missing:
         raise ValueError(f"train_or_load: no training queries rendered for {missing}; prepare_data with them")
-    key = stable_hash({"split": split, "model": model_cfg.to_dict(), "train": _cfg_dict(train_cfg),
+    key = stable_hash({"split": split, "train": _train_key(train_cfg),
                        "refs": [data.key(n) for n in seen], "train_q": [data.key(n, "train_q") for n in seen],
                        "val_q": [data.key(n, "val_q") for n in seen], "val_refs": val_refs_per_object})
     run = cache_dir(data.cfg.cache_dir or None) / "runs" / f"split{split}-{key}"
@@ -155,10 +155,11 @@ def train_or_load(split: int, model_cfg: Any, train_cfg: Any, data: StudyData, v
     return model, run, {"history": history, **info}
 
 
-def _cfg_dict(cfg: Any) -> dict:
-    if hasattr(cfg, "to_dict"):
-        return cfg.to_dict()
-    d = asdict(cfg)
+def _train_key(cfg: Any) -> dict:
+    """The parts of a TrainConfig that change the trained weights (not device/progress)."""
+    d = cfg.to_dict() if hasattr(cfg, "to_dict") else asdict(cfg)
+    for k in ("device", "progress", "num_threads", "val_batch_size"):
+        d.pop(k, None)
     return d
 
 

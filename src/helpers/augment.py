@@ -1,0 +1,180 @@
+"""Training-time augmentation of query crops.
+
+Works on uint8 RGB numpy images (S, S, 3), the format of
+:class:`helpers.views.ObjectViews`, with OpenCV; each image is processed on
+its own so per-image magnitudes are independent. References (clean renders)
+are not augmented.
+
+Order: in-plane rotation (geometry, changes the label) -> occlusion -> HSV
+jitter -> blur -> noise (sensor-like effects last, so they also cover the
+occluder). Every random draw comes from the caller's ``numpy.random.Generator``
+and happens in a fixed order whatever the switches, so a given seed and
+config always give the same result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import cv2
+import numpy as np
+
+from .rotations import inplane_rotate_label
+
+
+@dataclass
+class AugmentConfig:
+    """Switches and magnitudes (angles in degrees, intensities in 0-255 grey levels).
+
+    Attributes:
+        enabled: master switch.
+        hsv: hue shift uniform in +-hue_deg, saturation and value scaled by
+            factors uniform in [1 - sat, 1 + sat] and [1 - val, 1 + val].
+        noise: additive Gaussian noise with sigma uniform in [0, noise_std].
+        blur: with probability blur_p, Gaussian blur with sigma uniform in
+            [0.1, blur_sigma] px.
+        inplane: with probability inplane_p, rotate the image about its
+            centre by an angle uniform in +-inplane_deg (positive =
+            counter-clockwise on screen, as cv2.getRotationMatrix2D); the
+            rotation label is updated with
+            :func:`helpers.rotations.inplane_rotate_label`. Corners are
+            filled by reflection so no artificial black wedge appears.
+        occlusion: with probability occlusion_p, paint one axis-aligned
+            rectangle covering a fraction uniform in [occlusion_min,
+            occlusion_max] of the image, aspect ratio log-uniform in [1/2, 2],
+            filled with a random colour plus noise.
+    """
+
+    enabled: bool = True
+    hsv: bool = True
+    hue_deg: float = 10.0
+    sat: float = 0.3
+    val: float = 0.3
+    noise: bool = True
+    noise_std: float = 8.0
+    blur: bool = True
+    blur_p: float = 0.5
+    blur_sigma: float = 1.5
+    inplane: bool = True
+    inplane_p: float = 1.0
+    inplane_deg: float = 45.0
+    occlusion: bool = False
+    occlusion_p: float = 0.5
+    occlusion_min: float = 0.05
+    occlusion_max: float = 0.3
+
+    def __post_init__(self) -> None:
+        for name in ("enabled", "hsv", "noise", "blur", "inplane", "occlusion"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"AugmentConfig.{name}: expected a bool, got {getattr(self, name)!r}")
+        for name in ("blur_p", "inplane_p", "occlusion_p", "sat", "val"):
+            if not 0.0 <= float(getattr(self, name)) <= 1.0:
+                raise ValueError(f"AugmentConfig.{name}: expected a value in [0, 1], got {getattr(self, name)!r}")
+        for name in ("hue_deg", "noise_std", "inplane_deg"):
+            if float(getattr(self, name)) < 0:
+                raise ValueError(f"AugmentConfig.{name}: expected >= 0, got {getattr(self, name)!r}")
+        if not 0.1 <= float(self.blur_sigma):
+            raise ValueError(f"AugmentConfig.blur_sigma: expected >= 0.1 px, got {self.blur_sigma!r}")
+        if not 0.0 < self.occlusion_min <= self.occlusion_max < 1.0:
+            raise ValueError(f"AugmentConfig.occlusion_min/max: expected 0 < min <= max < 1, got "
+                             f"{self.occlusion_min!r}, {self.occlusion_max!r}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "AugmentConfig":
+        unknown = set(d) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"AugmentConfig.from_dict: unknown keys {sorted(unknown)}")
+        return cls(**d)
+
+
+def rotate_inplane(image: np.ndarray, angle_deg: float) -> np.ndarray:
+    """Rotate (S, S, 3) uint8 about its centre; positive = counter-clockwise on screen."""
+    h, w = image.shape[:2]
+    m = cv2.getRotationMatrix2D(((w - 1) / 2.0, (h - 1) / 2.0), float(angle_deg), 1.0)
+    return cv2.warpAffine(image, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+
+
+def hsv_jitter(image: np.ndarray, hue_deg: float, sat_scale: float, val_scale: float) -> np.ndarray:
+    """Shift hue by ``hue_deg`` degrees and scale saturation/value; uint8 RGB in and out."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV).astype(np.float32)
+    # OpenCV stores 8-bit hue as degrees / 2 in [0, 180).
+    hsv[..., 0] = np.mod(hsv[..., 0] + hue_deg / 2.0, 180.0)
+    hsv[..., 1] = np.clip(hsv[..., 1] * sat_scale, 0, 255)
+    hsv[..., 2] = np.clip(hsv[..., 2] * val_scale, 0, 255)
+    return cv2.cvtColor(hsv.round().astype(np.uint8), cv2.COLOR_HSV2RGB)
+
+
+def occlude(image: np.ndarray, rng: np.random.Generator, min_frac: float, max_frac: float) -> np.ndarray:
+    """Paint a random rectangle (random colour + noise) covering a fraction of the image."""
+    h, w = image.shape[:2]
+    area = rng.uniform(min_frac, max_frac) * h * w
+    aspect = np.exp(rng.uniform(np.log(0.5), np.log(2.0)))
+    rh = int(np.clip(round(np.sqrt(area * aspect)), 1, h))
+    rw = int(np.clip(round(np.sqrt(area / aspect)), 1, w))
+    y0 = int(rng.integers(0, h - rh + 1))
+    x0 = int(rng.integers(0, w - rw + 1))
+    colour = rng.uniform(0, 255, size=3)
+    patch = colour + rng.normal(0.0, 20.0, size=(rh, rw, 3))
+    out = image.copy()
+    out[y0:y0 + rh, x0:x0 + rw] = np.clip(patch, 0, 255).round().astype(np.uint8)
+    return out
+
+
+def augment_image(image: np.ndarray, rotation: np.ndarray, rng: np.random.Generator,
+                  cfg: AugmentConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Augment one query.
+
+    Args:
+        image: (S, S, 3) uint8 RGB.
+        rotation: (3, 3) R_m2c label.
+        rng: source of all randomness.
+        cfg: switches and magnitudes.
+
+    Returns:
+        (image (S, S, 3) uint8, rotation (3, 3) float64) -- the rotation
+        changes only with the in-plane augmentation.
+    """
+    if image.ndim != 3 or image.shape[-1] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"image: expected (S,S,3) uint8, got {image.shape} {image.dtype}")
+    rotation = np.asarray(rotation, dtype=np.float64)
+    if not cfg.enabled:
+        return image, rotation
+    # Draw every scalar up front, in a fixed order, so switches do not shift the stream.
+    u = rng.uniform(size=9)
+    angle = (2 * u[0] - 1) * cfg.inplane_deg
+    hue = (2 * u[1] - 1) * cfg.hue_deg
+    sat = 1 + (2 * u[2] - 1) * cfg.sat
+    val = 1 + (2 * u[3] - 1) * cfg.val
+    blur_sigma = 0.1 + u[4] * (cfg.blur_sigma - 0.1)
+    noise_std = u[5] * cfg.noise_std
+    do_inplane, do_blur, do_occl = u[6] < cfg.inplane_p, u[7] < cfg.blur_p, u[8] < cfg.occlusion_p
+    occl_rng = np.random.default_rng(rng.integers(2 ** 63))
+    noise_rng = np.random.default_rng(rng.integers(2 ** 63))
+
+    out = image
+    if cfg.inplane and do_inplane and angle != 0.0:
+        out = rotate_inplane(out, angle)
+        rotation = inplane_rotate_label(rotation, angle)
+    if cfg.occlusion and do_occl:
+        out = occlude(out, occl_rng, cfg.occlusion_min, cfg.occlusion_max)
+    if cfg.hsv:
+        out = hsv_jitter(out, hue, sat, val)
+    if cfg.blur and do_blur:
+        out = cv2.GaussianBlur(out, (0, 0), sigmaX=float(blur_sigma), borderType=cv2.BORDER_REFLECT_101)
+    if cfg.noise and noise_std > 0:
+        noisy = out.astype(np.float32) + noise_rng.normal(0.0, noise_std, size=out.shape).astype(np.float32)
+        out = np.clip(noisy, 0, 255).round().astype(np.uint8)
+    return np.ascontiguousarray(out), rotation
+
+
+def augment_batch(images: np.ndarray, rotations: np.ndarray, rng: np.random.Generator,
+                  cfg: AugmentConfig) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`augment_image` over (B, S, S, 3) uint8 and (B, 3, 3); returns new arrays."""
+    out_img = np.empty_like(np.asarray(images))
+    out_rot = np.empty((len(images), 3, 3), dtype=np.float64)
+    for i in range(len(images)):
+        out_img[i], out_rot[i] = augment_image(np.asarray(images[i]), rotations[i], rng, cfg)
+    return out_img, out_rot

@@ -1,0 +1,515 @@
+"""The retrieval network: multi-scale local features and their learned fusion.
+
+Follows the method of Zhao, Hu & Salzmann (ECCV 2022) as described in
+``METHOD.md``:
+
+* :func:`preprocess` turns RGB crops into locally normalised grey images.
+* :class:`OrientationNet` encodes an image into unit-norm feature maps at up
+  to three decoder levels (named 32, 16 and 13 after their side length at a
+  128 px input), and scores a query against references by fusing the
+  per-location similarities.
+
+Feature tensors are ``(B, C, L)`` float: the selected levels' maps flattened
+row-major and concatenated in the order 32, 16, 13 (``L = 1449`` at 128 px
+with all three). :attr:`OrientationNet.scale_slices` splits ``L`` again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.utils.checkpoint import checkpoint
+
+LEVELS = (32, 16, 13)
+"""Decoder levels, named by their side length at a 128 px input, in feature order."""
+
+FUSIONS = ("adaptive", "sigmoid", "softmax", "avg")
+
+LOCAL_NORM_EPS = 1e-2
+"""Added to the local std (intensity units, image in [0, 1]).
+
+About 2.5 grey levels: flat or nearly flat patches (rendered black background,
+8-bit quantisation noise) stay near zero instead of being blown up to unit
+contrast, while textured patches (std >> 0.01) are normalised almost exactly.
+"""
+
+LOCAL_NORM_CLAMP = 6.0
+
+# Budgets (elements) for the float32 blocks q_i * r_j formed when fusing many
+# pairs. 2**17 floats = 512 kB stays in a CPU core's L2 cache, which measured
+# ~3x faster than larger blocks for the three passes over each block (product,
+# logits, weighted sum). With autograd, blocks are checkpointed and the Python
+# overhead per block matters more than cache, so they are larger.
+_BLOCK_ELEMENTS = 2 ** 17
+_BLOCK_ELEMENTS_GRAD = 2 ** 22
+
+
+# --------------------------------------------------------------------------- config
+
+@dataclass
+class ModelConfig:
+    """Architecture switches (everything needed to rebuild the network).
+
+    Attributes:
+        image_size: input side S in px; multiple of 16, >= 64. Level maps are
+            S/4 (level 32), S/8 (level 16) and S/8 - 3 (level 13).
+        fusion: "adaptive" (softmax(g) x sigmoid(l), the full method),
+            "sigmoid", "softmax", or "avg" (plain mean of local cosines, no
+            learned head). Ignored when ``scales == "global"``.
+        scales: non-empty subset of (32, 16, 13), or "global" (one descriptor
+            per image: the level-13 map averaged over locations, cosine score).
+        local_norm: locally normalise the grey input (else global per-image
+            standardisation).
+        norm_window: side r of the local-normalisation window in px (odd or
+            even; authors' code 17, paper 32).
+        channels: feature channels per location.
+        dropout: dropout probability in the level heads.
+    """
+
+    image_size: int = 128
+    fusion: str = "adaptive"
+    scales: tuple | str = (32, 16, 13)
+    local_norm: bool = True
+    norm_window: int = 17
+    channels: int = 128
+    dropout: float = 0.1
+
+    def __post_init__(self) -> None:
+        if isinstance(self.image_size, bool) or not isinstance(self.image_size, (int, np.integer)) \
+                or self.image_size < 64 or self.image_size % 16:
+            raise ValueError(f"ModelConfig.image_size: expected an int multiple of 16 and >= 64, "
+                             f"got {self.image_size!r}")
+        self.image_size = int(self.image_size)
+        if self.fusion not in FUSIONS:
+            raise ValueError(f"ModelConfig.fusion: expected one of {FUSIONS}, got {self.fusion!r}")
+        if isinstance(self.scales, str):
+            if self.scales != "global":
+                raise ValueError(f"ModelConfig.scales: expected a subset of {LEVELS} or 'global', "
+                                 f"got {self.scales!r}")
+        else:
+            try:
+                given = [int(s) for s in self.scales]
+            except (TypeError, ValueError):
+                raise ValueError(f"ModelConfig.scales: expected a subset of {LEVELS} or 'global', "
+                                 f"got {self.scales!r}") from None
+            if not given or len(set(given)) != len(given) or not set(given) <= set(LEVELS):
+                raise ValueError(f"ModelConfig.scales: expected a non-empty subset of {LEVELS} without "
+                                 f"repeats, or 'global', got {self.scales!r}")
+            # Canonical order so that feature layout never depends on how the user listed them.
+            self.scales = tuple(s for s in LEVELS if s in given)
+        if not isinstance(self.local_norm, (bool, np.bool_)):
+            raise ValueError(f"ModelConfig.local_norm: expected a bool, got {self.local_norm!r}")
+        self.local_norm = bool(self.local_norm)
+        if isinstance(self.norm_window, bool) or not isinstance(self.norm_window, (int, np.integer)) \
+                or not 2 <= self.norm_window <= self.image_size // 2:
+            raise ValueError(f"ModelConfig.norm_window: expected an int in [2, image_size/2="
+                             f"{self.image_size // 2}], got {self.norm_window!r}")
+        self.norm_window = int(self.norm_window)
+        if isinstance(self.channels, bool) or not isinstance(self.channels, (int, np.integer)) \
+                or self.channels < 1:
+            raise ValueError(f"ModelConfig.channels: expected a positive int, got {self.channels!r}")
+        self.channels = int(self.channels)
+        if not 0.0 <= float(self.dropout) < 1.0:
+            raise ValueError(f"ModelConfig.dropout: expected a float in [0, 1), got {self.dropout!r}")
+        self.dropout = float(self.dropout)
+
+    @property
+    def is_global(self) -> bool:
+        return self.scales == "global"
+
+    @property
+    def levels(self) -> tuple[int, ...]:
+        """Levels whose maps are returned (``(13,)`` for "global")."""
+        return (13,) if self.is_global else tuple(self.scales)
+
+    def to_dict(self) -> dict:
+        """Plain JSON/checkpoint-safe dict (tuples become lists)."""
+        d = asdict(self)
+        if not isinstance(d["scales"], str):
+            d["scales"] = list(d["scales"])
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelConfig":
+        """Inverse of :meth:`to_dict`; unknown keys are an error."""
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"ModelConfig.from_dict: unknown keys {sorted(unknown)}")
+        d = dict(d)
+        if "scales" in d and not isinstance(d["scales"], str):
+            d["scales"] = tuple(d["scales"])
+        return cls(**d)
+
+
+def level_shapes(image_size: int) -> dict[int, tuple[int, int]]:
+    """Map side lengths (h, w) of each level for a square input of ``image_size`` px."""
+    s4, s8 = image_size // 4, image_size // 8
+    return {32: (s4, s4), 16: (s8, s8), 13: (s8 - 3, s8 - 3)}
+
+
+# ----------------------------------------------------------------------- preprocessing
+
+def images_to_tensor(images: np.ndarray) -> torch.Tensor:
+    """uint8 (N, S, S, 3) RGB array -> float32 tensor (N, 3, S, S) in [0, 1]."""
+    arr = np.asarray(images)
+    if arr.ndim != 4 or arr.shape[-1] != 3 or arr.dtype != np.uint8:
+        raise ValueError(f"images: expected (N,S,S,3) uint8, got {arr.shape} {arr.dtype}")
+    return torch.from_numpy(np.ascontiguousarray(arr)).permute(0, 3, 1, 2).float().div_(255.0)
+
+
+def preprocess(images: torch.Tensor, local_norm: bool = True, window: int = 17,
+               eps: float = LOCAL_NORM_EPS, clamp: float = LOCAL_NORM_CLAMP) -> torch.Tensor:
+    """RGB crops -> normalised grey images.
+
+    Args:
+        images: (B, 3, H, W) float in [0, 1] (uint8 tensors are divided by 255).
+        local_norm: if True, ``(x - mu) / (std + eps)`` with mu/std over an
+            ``window x window`` box around each pixel (reflect padding), then
+            clamped to +-``clamp``. If False, the grey image is standardised
+            with its own global mean and std (eps 1e-6 against blank
+            images), without clamping.
+        window: box side in px; even sizes put the extra row/column after the
+            centre (pad (r-1)//2 before, r//2 after).
+
+    Returns:
+        (B, 1, H, W) float32.
+    """
+    if images.ndim != 4 or images.shape[1] != 3:
+        raise ValueError(f"images: expected (B,3,H,W), got {tuple(images.shape)}")
+    if images.dtype == torch.uint8:
+        images = images.float() / 255.0
+    grey = images.float().mean(dim=1, keepdim=True)
+    # Removing the per-image mean first keeps E[x^2] - E[x]^2 from cancelling badly.
+    grey = grey - grey.mean(dim=(2, 3), keepdim=True)
+    if not local_norm:
+        std = grey.pow(2).mean(dim=(2, 3), keepdim=True).sqrt()
+        return grey / (std + 1e-6)
+    before, after = (window - 1) // 2, window // 2
+    padded = F.pad(grey, (before, after, before, after), mode="reflect")
+    # Box filter as a stride-1 average pool: O(HW r^2) but a single fused kernel,
+    # far cheaper than anything else in the network.
+    mu = F.avg_pool2d(padded, window, stride=1)
+    var = (F.avg_pool2d(padded * padded, window, stride=1) - mu * mu).clamp_min(0.0)
+    out = (grey - mu) / (var.sqrt() + eps)
+    return out.clamp(-clamp, clamp)
+
+
+# --------------------------------------------------------------------------- network
+
+class ResBlock(nn.Module):
+    """Bias-free residual block: relu(conv3x3(relu(conv3x3(x))) + shortcut(x)).
+
+    The shortcut is a 1x1 projection when stride or width changes, else identity.
+    """
+
+    def __init__(self, cin: int, cout: int, stride: int = 1) -> None:
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1, bias=False)
+        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1, bias=False)
+        self.shortcut = (nn.Conv2d(cin, cout, 1, stride, bias=False)
+                         if stride != 1 or cin != cout else nn.Identity())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.relu(self.conv2(F.relu(self.conv1(x))) + self.shortcut(x))
+
+
+class Encoder(nn.Module):
+    """Grey (B,1,S,S) -> maps at S/4 (128 ch), S/8 (128 ch), S/8-3 (128 ch, pre-activation)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stem = nn.Conv2d(1, 32, 3, 1, 1)
+        self.stage1 = nn.Sequential(ResBlock(32, 32), ResBlock(32, 64, 2), ResBlock(64, 64))
+        self.stage2 = nn.Sequential(ResBlock(64, 128, 2), ResBlock(128, 128))
+        self.stage3 = nn.Sequential(ResBlock(128, 128, 2), ResBlock(128, 128))
+        self.valid = nn.Conv2d(128, 128, 4)  # no padding: 16 -> 13
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        x = self.stage1(F.relu(self.stem(x)))
+        f32 = self.stage2(x)
+        f16 = self.stage3(f32)
+        return f32, f16, self.valid(f16)
+
+
+class Head(nn.Module):
+    """ReLU -> Dropout -> 1x1 conv (no bias): per-level feature head."""
+
+    def __init__(self, cin: int, cout: int, dropout: float) -> None:
+        super().__init__()
+        self.drop = nn.Dropout(dropout)
+        self.conv = nn.Conv2d(cin, cout, 1, bias=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.conv(self.drop(F.relu(x)))
+
+
+class Decoder(nn.Module):
+    """Builds only the parts the selected levels need.
+
+    Level 13 is the encoder's 13x13 map. Level 16: ConvTranspose k=4 (13->16),
+    concat the 16x16 encoder map, 1x1 conv to 128. Level 32: bilinear x2 of
+    the level-16 map, concat the 32x32 encoder map, 1x1 conv to 128. The maps
+    entering the transposed conv and the upsampling are ReLU'd first, like
+    every head input (they are pre-activations).
+    """
+
+    def __init__(self, levels: tuple[int, ...], channels: int, dropout: float) -> None:
+        super().__init__()
+        self.levels = levels
+        self.need16 = 16 in levels or 32 in levels
+        self.need32 = 32 in levels
+        if self.need16:
+            self.up13 = nn.ConvTranspose2d(128, 128, 4)
+            self.merge16 = nn.Conv2d(256, 128, 1)
+        if self.need32:
+            self.merge32 = nn.Conv2d(256, 128, 1)
+        self.heads = nn.ModuleDict({str(lv): Head(128, channels, dropout) for lv in levels})
+
+    def forward(self, f32: torch.Tensor, f16: torch.Tensor, f13: torch.Tensor) -> dict[int, torch.Tensor]:
+        pre = {13: f13}
+        if self.need16:
+            pre[16] = self.merge16(torch.cat([self.up13(F.relu(f13)), f16], dim=1))
+        if self.need32:
+            up = F.interpolate(F.relu(pre[16]), size=f32.shape[-2:], mode="bilinear", align_corners=False)
+            pre[32] = self.merge32(torch.cat([up, f32], dim=1))
+        return {lv: self.heads[str(lv)](pre[lv]) for lv in self.levels}
+
+
+class Fusion(nn.Module):
+    """Learned fusion head: per-level 1x1 conv to the logits, then an MLP.
+
+    Per level a 1x1 conv (stored as Linear, weight (K, C)) maps the local
+    similarity q*r at every location to K logits: K=2 (local l, global g) for
+    "adaptive", K=1 (l) for "sigmoid", K=1 (g) for "softmax".
+    """
+
+    def __init__(self, fusion: str, levels: tuple[int, ...], channels: int, hidden: int = 128) -> None:
+        super().__init__()
+        self.fusion = fusion
+        k = 2 if fusion == "adaptive" else 1
+        self.logit = nn.ModuleDict({str(lv): nn.Linear(channels, k) for lv in levels})
+        self.mlp = nn.Sequential(nn.Linear(len(levels) * channels, hidden), nn.LeakyReLU(),
+                                 nn.Linear(hidden, 1))
+
+    def log_weights(self, logits: torch.Tensor) -> torch.Tensor:
+        """Unnormalised log fusion weights (..., X) from logits (..., K, X).
+
+        All variants are written as a log so that one softmax normalises them
+        stably: adaptive exp(g) sigmoid(l) -> g + logsigmoid(l); sigmoid ->
+        logsigmoid(l); softmax -> g.
+        """
+        if self.fusion == "adaptive":
+            return logits[..., 1, :] + F.logsigmoid(logits[..., 0, :])
+        if self.fusion == "sigmoid":
+            return F.logsigmoid(logits[..., 0, :])
+        return logits[..., 0, :]
+
+    def head(self, v: torch.Tensor) -> torch.Tensor:
+        """Concatenated per-level vectors (..., n_levels*C) -> score (...) in (-1, 1)."""
+        return torch.tanh(self.mlp(v)).squeeze(-1)
+
+
+def _fuse_block(fusion: "Fusion", w: torch.Tensor, b: torch.Tensor,
+                q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """Fused vectors of one query against a block of references at one level.
+
+    Args:
+        fusion: provides the log-weight rule of the variant.
+        w, b: (K, C), (K,) the level's 1x1 logit conv.
+        q: (C, X) float32 query map; r: (Rb, C, X) reference maps (float16 is
+            promoted inside the product, so no separate cast pass).
+
+    Returns:
+        (Rb, C): v[j, c] = sum_x a[j, x] q[c, x] r[j, c, x], with a the
+        normalised fusion weights computed from the logits W (q*r) + b.
+    """
+    prod = r * q                                                  # (Rb, C, X) local similarity
+    logits = torch.matmul(w, prod) + b[:, None]                   # (Rb, K, X)
+    a = torch.softmax(fusion.log_weights(logits), dim=-1)        # (Rb, X)
+    return torch.bmm(prod, a.unsqueeze(-1)).squeeze(-1)
+
+
+class OrientationNet(nn.Module):
+    """Encoder-decoder plus fusion head (see module docstring).
+
+    Attributes:
+        cfg: the :class:`ModelConfig`.
+        scale_shapes: level -> (h, w) of its map in the feature tensor
+            ({13: (1, 1)} for "global").
+        scale_slices: level -> slice of the L axis holding that level.
+        feature_length: L.
+    """
+
+    def __init__(self, cfg: ModelConfig | None = None) -> None:
+        super().__init__()
+        self.cfg = cfg if cfg is not None else ModelConfig()
+        c = self.cfg
+        self.encoder = Encoder()
+        self.decoder = Decoder(c.levels, c.channels, c.dropout)
+        learned = not c.is_global and c.fusion != "avg"
+        self.fusion = Fusion(c.fusion, c.levels, c.channels) if learned else None
+        shapes = level_shapes(c.image_size)
+        self.scale_shapes: dict[int, tuple[int, int]] = (
+            {13: (1, 1)} if c.is_global else {lv: shapes[lv] for lv in c.levels})
+        self.scale_slices: dict[int, slice] = {}
+        start = 0
+        for lv, (h, w) in self.scale_shapes.items():
+            self.scale_slices[lv] = slice(start, start + h * w)
+            start += h * w
+        self.feature_length = start
+
+    # ------------------------------------------------------------------ encoding
+
+    def preprocess(self, images: torch.Tensor) -> torch.Tensor:
+        """:func:`preprocess` with this model's settings: (B,3,S,S) -> (B,1,S,S)."""
+        return preprocess(images, self.cfg.local_norm, self.cfg.norm_window)
+
+    def encode(self, images: torch.Tensor) -> torch.Tensor:
+        """Images (B, 3, S, S) float in [0, 1] (or uint8) -> features (B, C, L) float32.
+
+        Each location is a unit vector over C. For "global", L = 1: the raw
+        level-13 head output averaged over locations, then L2-normalised.
+        """
+        s = self.cfg.image_size
+        if images.ndim != 4 or tuple(images.shape[1:]) != (3, s, s):
+            raise ValueError(f"images: expected (B,3,{s},{s}), got {tuple(images.shape)}")
+        x = self.preprocess(images.to(next(self.parameters()).device))
+        maps = self.decoder(*self.encoder(x))
+        if self.cfg.is_global:
+            return F.normalize(maps[13].mean(dim=(2, 3)), dim=1).unsqueeze(-1)
+        flat = [F.normalize(maps[lv], dim=1).flatten(2) for lv in self.cfg.levels]
+        return torch.cat(flat, dim=2)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        return self.encode(images)
+
+    # ------------------------------------------------------------------- scoring
+
+    def _check(self, f: torch.Tensor, name: str) -> None:
+        want = (self.cfg.channels, self.feature_length)
+        if f.ndim != 3 or tuple(f.shape[1:]) != want:
+            raise ValueError(f"{name}: expected features (N,{want[0]},{want[1]}), got {tuple(f.shape)}")
+
+    def _fusion_params(self, level: int) -> tuple[torch.Tensor, torch.Tensor]:
+        lin = self.fusion.logit[str(level)]
+        return lin.weight, lin.bias
+
+    def _fused_vectors(self, level: int, q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        """Per-level fused vectors for all pairs: q (Q,C,X), r (R,C,X) -> (Q, R, C).
+
+        The logit conv is bilinear in (q, r), so the logits could be one
+        batched matmul over locations; on CPU that form (X tiny GEMMs on a
+        transposed copy of r) measured ~10x slower than forming q_i*r in
+        cache-sized blocks and reusing each block for the logits and the
+        weighted sum. Blocks are (one query, Rb references) with Rb*C*X
+        bounded, so memory never grows with R or Q. With autograd each block
+        is checkpointed, so backward keeps only its inputs.
+        """
+        w, b = self._fusion_params(level)
+        nq, c, nx = q.shape
+        grad = torch.is_grad_enabled() and (q.requires_grad or r.requires_grad or w.requires_grad)
+        rb = max(1, (_BLOCK_ELEMENTS_GRAD if grad else _BLOCK_ELEMENTS) // (c * nx))
+        rows = []
+        for i in range(nq):
+            cols = []
+            for s in range(0, r.shape[0], rb):
+                args = (self.fusion, w, b, q[i], r[s:s + rb])
+                cols.append(checkpoint(_fuse_block, *args, use_reentrant=False) if grad
+                            else _fuse_block(*args))
+            rows.append(torch.cat(cols, 0))
+        return torch.stack(rows, 0)
+
+    def _score_chunk(self, q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        """q (Q,C,L) float32, r (Rc,C,L) float16/32 on the same device -> (Q, Rc)."""
+        if self.cfg.is_global:
+            return q[:, :, 0] @ r[:, :, 0].float().T
+        if self.fusion is None:  # "avg": per-level mean cosine is one matmul on flattened maps
+            total = 0.0
+            for sl in self.scale_slices.values():
+                n = sl.stop - sl.start
+                total = total + q[:, :, sl].flatten(1) @ r[:, :, sl].float().flatten(1).T / n
+            return total / len(self.scale_slices)
+        vs = [self._fused_vectors(lv, q[:, :, sl], r[:, :, sl]) for lv, sl in self.scale_slices.items()]
+        return self.fusion.head(torch.cat(vs, dim=-1))
+
+    def score(self, q: torch.Tensor, r: torch.Tensor, chunk: int = 1024) -> torch.Tensor:
+        """All query/reference scores.
+
+        Args:
+            q: (Q, C, L) query features.
+            r: (R, C, L) reference features, float16/32 on any device (e.g.
+                a float16 memory-mapped cache on CPU); moved to q's device one
+                chunk at a time and promoted to float32 block by block.
+            chunk: references per chunk. Peak extra memory is about one
+                chunk on q's device (``chunk * C * L`` elements of r's dtype)
+                plus the (Q, chunk, C) fused vectors; the float32 q*r blocks
+                are capped at 0.5 MB (16 MB with autograd).
+
+        Returns:
+            (Q, R) float32 scores: tanh output of the fusion head in (-1, 1),
+            or a mean cosine in [-1, 1] for "avg" and "global".
+
+        Differentiable (used for training) and safe under inference_mode.
+        """
+        self._check(q, "q")
+        self._check(r, "r")
+        if chunk < 1:
+            raise ValueError(f"chunk: expected >= 1, got {chunk}")
+        q = q.float()
+        keep = r.dtype in (torch.float16, torch.float32)
+        out = [self._score_chunk(q, r[s:s + chunk].to(device=q.device,
+                                                      dtype=r.dtype if keep else torch.float32))
+               for s in range(0, r.shape[0], chunk)]
+        return torch.cat(out, dim=1) if out else q.new_zeros(q.shape[0], 0)
+
+    def _pair_weights(self, q: torch.Tensor, r: torch.Tensor) -> dict[int, tuple[torch.Tensor, torch.Tensor]]:
+        """Per level: (local similarity q*r (B,C,X), fusion weights (B,X)) for aligned pairs."""
+        out = {}
+        for lv, sl in self.scale_slices.items():
+            prod = q[:, :, sl] * r[:, :, sl]
+            if self.fusion is None:
+                a = prod.new_full((prod.shape[0], prod.shape[2]), 1.0 / prod.shape[2])
+            else:
+                w, b = self._fusion_params(lv)
+                logits = torch.einsum("kc,bcx->bkx", w, prod) + b[:, None]
+                a = torch.softmax(self.fusion.log_weights(logits), dim=-1)
+            out[lv] = (prod, a)
+        return out
+
+    def score_pairs(self, q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        """Scores of aligned pairs: q (B,C,L), r (B,C,L) -> (B,), equal to diag of :meth:`score`."""
+        self._check(q, "q")
+        self._check(r, "r")
+        if q.shape[0] != r.shape[0]:
+            raise ValueError(f"score_pairs: q and r must have the same batch size, got {q.shape[0]} and {r.shape[0]}")
+        q = q.float()
+        r = r.to(device=q.device, dtype=torch.float32)
+        parts = self._pair_weights(q, r)
+        if self.fusion is None:
+            # Uniform weights: mean of per-level mean cosines (same as "avg"/"global" in score).
+            cos = [(prod * a[:, None]).sum(dim=(1, 2)) for prod, a in parts.values()]
+            return torch.stack(cos, 0).mean(0)
+        vs = [torch.bmm(prod, a.unsqueeze(-1)).squeeze(-1) for prod, a in parts.values()]
+        return self.fusion.head(torch.cat(vs, dim=-1))
+
+    def fusion_maps(self, q: torch.Tensor, r: torch.Tensor) -> dict[int, torch.Tensor]:
+        """Normalised fusion weights for aligned pairs: level -> (B, h, w), each map sums to 1.
+
+        Uniform for "avg" and "global". Meant for confidence-map figures.
+        """
+        self._check(q, "q")
+        self._check(r, "r")
+        parts = self._pair_weights(q.float(), r.to(device=q.device, dtype=torch.float32))
+        return {lv: a.reshape(a.shape[0], *self.scale_shapes[lv]) for lv, (_, a) in parts.items()}
+
+
+def count_parameters(model: OrientationNet) -> dict[str, int]:
+    """Trainable parameter counts: encoder_decoder, fusion_head (0 for avg/global), total."""
+    enc = sum(p.numel() for m in (model.encoder, model.decoder) for p in m.parameters())
+    fus = 0 if model.fusion is None else sum(p.numel() for p in model.fusion.parameters())
+    return {"encoder_decoder": enc, "fusion_head": fus, "total": enc + fus}

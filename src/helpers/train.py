@@ -1,0 +1,502 @@
+"""Training loop with resumable, deterministic checkpoints and seen-object validation.
+
+One step: B training queries (over all training objects) are augmented; each
+gets its positive (the reference of its object with the nearest rotation,
+found *after* augmentation since in-plane rotation changes the label) and one
+random reference of a random training object. The B queries and 2B
+references are encoded together, scored into a (B, 2B) matrix and trained
+with the (weighted) infoNCE of :mod:`helpers.losses`.
+
+Model selection uses only held-out views of the *training* objects (never the
+unseen test objects): each validation query is scored against a small set of
+references of every training object.
+
+Files in ``out_dir``: ``last.pt`` (everything needed to resume), ``best.pt``
+(weights of the best validation epoch), ``history.json``, ``history.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .augment import AugmentConfig, augment_batch
+from .device import resolve_device
+from .losses import pair_weights, weighted_info_nce
+from .model import ModelConfig, OrientationNet, images_to_tensor
+from .rotations import nearest, symmetric_geodesic_deg
+from .views import ObjectViews
+
+ROT_THRESHOLD_DEG = 30.0
+
+# Fields that may change between an interrupted run and its resumption
+# without changing the trajectory of the weights.
+_RESUMABLE_CHANGES = {"epochs", "device", "num_threads", "val_every", "progress", "val_batch_size"}
+
+
+@dataclass
+class TrainConfig:
+    """Training hyper-parameters (epochs and milestones count epochs).
+
+    Attributes:
+        epochs: total epochs (a resumed run continues up to this number).
+        steps_per_epoch: optimiser steps per epoch; None = one pass over the
+            training queries, ceil(N / batch_size).
+        batch_size: queries per step (each adds 2 references to encode).
+        lr, lr_milestones, lr_gamma: Adam learning rate, divided by
+            1/lr_gamma at each milestone epoch (MultiStepLR).
+        tau: infoNCE temperature.
+        weighted_loss: geodesic weights (True) or plain infoNCE (False).
+        seed: seeds torch (init, dropout) and the numpy Generator (sampling,
+            augmentation).
+        device: "auto", "cpu", "cuda", ... (see helpers.device).
+        augment: query augmentation.
+        occlusion: convenience switch that turns on ``augment.occlusion``
+            (training for the occluded benchmark).
+        val_every: validate every this many epochs (and at the last epoch).
+        num_threads: torch CPU threads during training (None = leave as is).
+        model: network configuration, embedded in checkpoints.
+        progress: show tqdm bars.
+        val_batch_size: images per forward pass during validation.
+    """
+
+    epochs: int = 200
+    steps_per_epoch: int | None = None
+    batch_size: int = 16
+    lr: float = 1e-4
+    lr_milestones: tuple = (50, 150)
+    lr_gamma: float = 0.1
+    tau: float = 0.1
+    weighted_loss: bool = True
+    seed: int = 0
+    device: str = "auto"
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+    occlusion: bool = False
+    val_every: int = 1
+    num_threads: int | None = None
+    model: ModelConfig = field(default_factory=ModelConfig)
+    progress: bool = True
+    val_batch_size: int = 32
+
+    def __post_init__(self) -> None:
+        def pos_int(name: str, allow_none: bool = False) -> None:
+            v = getattr(self, name)
+            if allow_none and v is None:
+                return
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"TrainConfig.{name}: expected a positive int{' or None' if allow_none else ''}, "
+                                 f"got {v!r}")
+            setattr(self, name, int(v))
+
+        for name in ("epochs", "batch_size", "val_every", "val_batch_size"):
+            pos_int(name)
+        pos_int("steps_per_epoch", allow_none=True)
+        pos_int("num_threads", allow_none=True)
+        if not float(self.lr) > 0:
+            raise ValueError(f"TrainConfig.lr: expected > 0, got {self.lr!r}")
+        try:
+            self.lr_milestones = tuple(int(m) for m in self.lr_milestones)
+        except (TypeError, ValueError):
+            raise ValueError(f"TrainConfig.lr_milestones: expected a sequence of ints, "
+                             f"got {self.lr_milestones!r}") from None
+        if list(self.lr_milestones) != sorted(set(self.lr_milestones)) or any(m < 1 for m in self.lr_milestones):
+            raise ValueError(f"TrainConfig.lr_milestones: expected increasing positive epochs, "
+                             f"got {self.lr_milestones!r}")
+        if not 0 < float(self.lr_gamma) <= 1:
+            raise ValueError(f"TrainConfig.lr_gamma: expected in (0, 1], got {self.lr_gamma!r}")
+        if not float(self.tau) > 0:
+            raise ValueError(f"TrainConfig.tau: expected > 0, got {self.tau!r}")
+        for name in ("weighted_loss", "occlusion", "progress"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"TrainConfig.{name}: expected a bool, got {getattr(self, name)!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"TrainConfig.seed: expected a non-negative int, got {self.seed!r}")
+        if not isinstance(self.device, str):
+            raise ValueError(f"TrainConfig.device: expected a string, got {self.device!r}")
+        if isinstance(self.augment, dict):
+            self.augment = AugmentConfig.from_dict(self.augment)
+        if not isinstance(self.augment, AugmentConfig):
+            raise ValueError(f"TrainConfig.augment: expected an AugmentConfig, got {type(self.augment).__name__}")
+        if isinstance(self.model, dict):
+            self.model = ModelConfig.from_dict(self.model)
+        if not isinstance(self.model, ModelConfig):
+            raise ValueError(f"TrainConfig.model: expected a ModelConfig, got {type(self.model).__name__}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["lr_milestones"] = list(self.lr_milestones)
+        d["augment"] = self.augment.to_dict()
+        d["model"] = self.model.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        unknown = set(d) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"TrainConfig.from_dict: unknown keys {sorted(unknown)}")
+        return cls(**d)
+
+
+@dataclass
+class TrainResult:
+    """Outcome of :func:`train`.
+
+    Attributes:
+        best_path: best.pt (best validation rot_acc; the last epoch if no
+            validation data was given).
+        last_path: last.pt.
+        history: per-epoch dicts (see :func:`train`).
+        train_images_per_s: images encoded per second (forward + backward +
+            optimiser step, data preparation included), mean over the epochs
+            run in this call (NaN if none ran).
+    """
+
+    best_path: Path
+    last_path: Path
+    history: list[dict]
+    train_images_per_s: float
+
+
+# --------------------------------------------------------------------------- helpers
+
+def _atomic_torch_save(obj, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def _atomic_write_text(text: str, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _check_views(views: dict[str, ObjectViews], what: str, size: int) -> None:
+    for name, v in views.items():
+        if not isinstance(v, ObjectViews):
+            raise ValueError(f"{what}[{name!r}]: expected ObjectViews, got {type(v).__name__}")
+        if len(v) and v.images.shape[1:3] != (size, size):
+            raise ValueError(f"{what}[{name!r}]: images are {v.images.shape[1]}x{v.images.shape[2]}, "
+                             f"model expects {size}x{size}")
+
+
+def _order_stream(rng: np.random.Generator, n: int, count: int) -> np.ndarray:
+    """``count`` indices in [0, n): back-to-back random permutations (each item once per pass)."""
+    reps = math.ceil(count / n)
+    return np.concatenate([rng.permutation(n) for _ in range(reps)])[:count]
+
+
+def _encode_views(model: OrientationNet, images: np.ndarray, device: torch.device, batch: int,
+                  dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """Encode (N, S, S, 3) uint8 in batches (no grad) -> (N, C, L) of ``dtype`` on ``device``."""
+    out = []
+    with torch.inference_mode():
+        for s in range(0, len(images), batch):
+            out.append(model.encode(images_to_tensor(images[s:s + batch]).to(device)).to(dtype))
+    return torch.cat(out, 0) if out else torch.zeros(0, model.cfg.channels, model.feature_length,
+                                                     dtype=dtype, device=device)
+
+
+def validate(model: OrientationNet, val_refs: dict[str, ObjectViews], val_queries: dict[str, ObjectViews],
+             device: str | torch.device = "auto", batch_size: int = 32) -> dict:
+    """Retrieval accuracy of seen-object validation queries against validation references.
+
+    Every query is scored against the references of *all* objects in
+    ``val_refs``; the best one gives the predicted object and rotation.
+
+    Returns:
+        dict with ``class_acc`` and ``rot_acc`` (fractions in [0, 1]; rot_acc
+        needs the right object and a symmetry-aware error < 30 degrees) and
+        ``median_err_deg`` (median rotation error of the retrieved reference,
+        whatever its object), each averaged per object then over objects,
+        plus ``per_object`` {name: {class_acc, rot_acc, median_err_deg, n}}.
+    """
+    device = resolve_device(device)
+    names = sorted(val_refs)
+    missing = set(val_queries) - set(names)
+    if missing:
+        raise ValueError(f"val_queries: objects {sorted(missing)} have no validation references")
+    was_training = model.training
+    model.eval()
+    try:
+        ref_feats = _encode_views(model, np.concatenate([val_refs[n].images for n in names]), device,
+                                  batch_size, torch.float16)  # float16 like the retrieval cache
+        ref_obj = np.concatenate([np.full(len(val_refs[n]), i) for i, n in enumerate(names)])
+        ref_rot = np.concatenate([np.asarray(val_refs[n].rotations, np.float64) for n in names])
+        per_object = {}
+        for name in sorted(val_queries):
+            qv = val_queries[name]
+            if len(qv) == 0:
+                continue
+            best = []
+            for s in range(0, len(qv), batch_size):
+                qf = _encode_views(model, qv.images[s:s + batch_size], device, batch_size)
+                with torch.inference_mode():
+                    best.append(model.score(qf, ref_feats).argmax(dim=1).cpu().numpy())
+            best = np.concatenate(best)
+            sym = qv.symmetries if qv.symmetries is not None else val_refs[name].symmetries
+            err = symmetric_geodesic_deg(ref_rot[best], np.asarray(qv.rotations, np.float64), sym)
+            correct = ref_obj[best] == names.index(name)
+            per_object[name] = {"class_acc": float(correct.mean()),
+                                "rot_acc": float((correct & (err < ROT_THRESHOLD_DEG)).mean()),
+                                "median_err_deg": float(np.median(err)), "n": int(len(qv))}
+    finally:
+        model.train(was_training)
+    keys = ("class_acc", "rot_acc", "median_err_deg")
+    summary = {k: float(np.mean([m[k] for m in per_object.values()])) if per_object else float("nan")
+               for k in keys}
+    summary["per_object"] = per_object
+    return summary
+
+
+class _Batcher:
+    """Builds training batches: augmented queries, positives and random references."""
+
+    def __init__(self, names: list[str], refs: dict[str, ObjectViews], queries: dict[str, ObjectViews],
+                 aug: AugmentConfig) -> None:
+        self.names = names
+        self.refs = [refs[n] for n in names]
+        self.queries = [queries.get(n) for n in names]
+        self.aug = aug
+        obj, idx = [], []
+        for i, q in enumerate(self.queries):
+            if q is not None and len(q):
+                obj.append(np.full(len(q), i))
+                idx.append(np.arange(len(q)))
+        self.q_obj = np.concatenate(obj)
+        self.q_idx = np.concatenate(idx)
+        self.n_refs = np.array([len(r) for r in self.refs])
+
+    def __len__(self) -> int:
+        return len(self.q_obj)
+
+    def make(self, picks: np.ndarray, rng: np.random.Generator):
+        """Batch for query indices ``picks`` (B,) -> (images (3B,S,S,3) uint8,
+        query objects (B,), query rotations (B,3,3), reference objects (2B,), reference rotations (2B,3,3))."""
+        q_obj, q_idx = self.q_obj[picks], self.q_idx[picks]
+        q_img = np.stack([self.queries[o].images[i] for o, i in zip(q_obj, q_idx)])
+        q_rot = np.stack([np.asarray(self.queries[o].rotations[i], np.float64) for o, i in zip(q_obj, q_idx)])
+        q_img, q_rot = augment_batch(q_img, q_rot, rng, self.aug)
+        # Positive: nearest reference rotation of the same object, after augmentation.
+        pos_idx = np.empty(len(picks), dtype=np.int64)
+        for o in np.unique(q_obj):
+            sel = q_obj == o
+            pos_idx[sel] = nearest(q_rot[sel], self.refs[o].rotations)[0]
+        rnd_obj = rng.integers(0, len(self.refs), size=len(picks))
+        rnd_idx = np.floor(rng.random(len(picks)) * self.n_refs[rnd_obj]).astype(np.int64)
+        r_obj = np.concatenate([q_obj, rnd_obj])
+        r_idx = np.concatenate([pos_idx, rnd_idx])
+        r_img = np.stack([self.refs[o].images[i] for o, i in zip(r_obj, r_idx)])
+        r_rot = np.stack([np.asarray(self.refs[o].rotations[i], np.float64) for o, i in zip(r_obj, r_idx)])
+        return np.concatenate([q_img, r_img]), q_obj, q_rot, r_obj, r_rot
+
+
+def train_step(model: OrientationNet, optimizer: torch.optim.Optimizer, images: torch.Tensor,
+               q_obj, q_rot, r_obj, r_rot, tau: float = 0.1, weighted: bool = True) -> float:
+    """One optimiser step on a prepared batch; returns the loss.
+
+    Args:
+        images: (3B, 3, S, S) float in [0, 1]: B queries then their B
+            positives then B random references.
+        q_obj, q_rot, r_obj, r_rot: labels for :func:`helpers.losses.pair_weights`
+            ((B,), (B,3,3), (2B,), (2B,3,3)).
+    """
+    b = len(q_obj)
+    feats = model.encode(images)
+    scores = model.score(feats[:b], feats[b:])  # (B, 2B); column i is query i's positive
+    weights = pair_weights(q_obj, q_rot, r_obj, r_rot).to(scores.device) if weighted else None
+    loss = weighted_info_nce(scores, torch.arange(b, device=scores.device), weights, tau)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    return float(loss.detach())
+
+
+def _rng_state() -> dict:
+    state = {"torch": torch.get_rng_state()}
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def _set_rng_state(state: dict) -> None:
+    torch.set_rng_state(state["torch"].cpu())
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda"]])
+
+
+# ----------------------------------------------------------------------------- train
+
+def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: dict[str, ObjectViews],
+          val_refs: dict[str, ObjectViews], val_queries: dict[str, ObjectViews], out_dir: Path,
+          resume: bool = True) -> TrainResult:
+    """Train (or resume training) and return checkpoint paths and history.
+
+    Args:
+        cfg: training configuration (embeds the model configuration).
+        train_refs: training object name -> references (N, S, S, 3) uint8;
+            all training objects, the pool of positives and random references.
+        train_queries: name -> training queries (a subset of the objects above).
+        val_refs: name -> a small subset of references per training object.
+        val_queries: name -> held-out views of training objects (not in
+            train_queries). Empty dicts skip validation.
+        out_dir: where checkpoints and history go (created).
+        resume: continue from ``out_dir/last.pt`` when it exists; the result
+            is identical to an uninterrupted run with the same seed (CPU).
+
+    History entries: epoch (1-based), global_step, lr, train_loss, seconds,
+    images_per_s, val (None or validate() summary without per_object).
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    names = sorted(train_refs)
+    if not names:
+        raise ValueError("train_refs: expected at least one training object")
+    if not set(train_queries) <= set(names):
+        raise ValueError(f"train_queries: objects {sorted(set(train_queries) - set(names))} have no references")
+    if not set(val_refs) <= set(names) or not set(val_queries) <= set(names):
+        raise ValueError("val_refs/val_queries: validation must use training (seen) objects only, got "
+                         f"{sorted((set(val_refs) | set(val_queries)) - set(names))}")
+    size = cfg.model.image_size
+    for views, what in ((train_refs, "train_refs"), (train_queries, "train_queries"),
+                        (val_refs, "val_refs"), (val_queries, "val_queries")):
+        _check_views(views, what, size)
+    if any(len(train_refs[n]) == 0 for n in names):
+        raise ValueError("train_refs: every training object needs at least one reference")
+    do_val = any(len(v) for v in val_queries.values())
+
+    device = resolve_device(cfg.device)
+    old_threads = torch.get_num_threads()
+    if cfg.num_threads is not None:
+        torch.set_num_threads(cfg.num_threads)
+    try:
+        aug = replace(cfg.augment, occlusion=cfg.augment.occlusion or cfg.occlusion)
+        batcher = _Batcher(names, train_refs, train_queries, aug)
+        if len(batcher) == 0:
+            raise ValueError("train_queries: expected at least one training query")
+        steps = cfg.steps_per_epoch or math.ceil(len(batcher) / cfg.batch_size)
+
+        torch.manual_seed(cfg.seed)
+        rng = np.random.default_rng(cfg.seed)
+        model = OrientationNet(cfg.model).to(device)
+        optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+        scheduler = torch.optim.lr_scheduler.MultiStepLR(optimizer, list(cfg.lr_milestones), cfg.lr_gamma)
+        history: list[dict] = []
+        start_epoch, global_step = 0, 0
+        best_metric, best_epoch = -math.inf, None
+        last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
+
+        if resume and last_path.exists():
+            ck = torch.load(last_path, map_location=device, weights_only=True)
+            old, new = ck["config"], cfg.to_dict()
+            diff = sorted(k for k in new if k not in _RESUMABLE_CHANGES and old.get(k) != new[k])
+            if diff:
+                raise ValueError(f"resume: {last_path} was trained with a different config "
+                                 f"(fields {diff}); use resume=False or another out_dir")
+            model.load_state_dict(ck["model"])
+            optimizer.load_state_dict(ck["optimizer"])
+            scheduler.load_state_dict(ck["scheduler"])
+            start_epoch, global_step = ck["epoch"], ck["global_step"]
+            history = list(ck["history"])
+            best_metric = ck["best_metric"]
+            best_epoch = ck["best_epoch"]
+            rng.bit_generator.state = ck["numpy_rng"]
+            _set_rng_state(ck["rng"])
+
+        speeds = []
+        for epoch in range(start_epoch, cfg.epochs):
+            model.train()
+            lr = optimizer.param_groups[0]["lr"]
+            order = _order_stream(rng, len(batcher), steps * cfg.batch_size)
+            losses = []
+            t0 = time.perf_counter()
+            bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress,
+                       leave=False)
+            for step in bar:
+                picks = order[step * cfg.batch_size:(step + 1) * cfg.batch_size]
+                imgs, q_obj, q_rot, r_obj, r_rot = batcher.make(picks, rng)
+                loss = train_step(model, optimizer, images_to_tensor(imgs).to(device),
+                                  q_obj, q_rot, r_obj, r_rot, cfg.tau, cfg.weighted_loss)
+                if not math.isfinite(loss):
+                    raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}, step {step}")
+                losses.append(loss)
+                global_step += 1
+                bar.set_postfix(loss=f"{loss:.4f}")
+            seconds = time.perf_counter() - t0
+            scheduler.step()
+            speed = steps * 3 * cfg.batch_size / seconds
+            speeds.append(speed)
+
+            val = None
+            if do_val and ((epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs):
+                val = validate(model, val_refs, val_queries, device, cfg.val_batch_size)
+                val.pop("per_object")
+            history.append({"epoch": epoch + 1, "global_step": global_step, "lr": float(lr),
+                            "train_loss": float(np.mean(losses)), "seconds": float(seconds),
+                            "images_per_s": float(speed), "val": val})
+
+            improved = (val is not None and val["rot_acc"] > best_metric) or not do_val
+            if improved:
+                best_metric = val["rot_acc"] if val is not None else best_metric
+                best_epoch = epoch + 1
+                # best.pt first: if we die before last.pt, the resumed run redoes this epoch.
+                _atomic_torch_save({"model": model.state_dict(), "model_config": cfg.model.to_dict(),
+                                    "config": cfg.to_dict(), "epoch": epoch + 1, "val": val,
+                                    "history": history}, best_path)
+            _atomic_torch_save({"model": model.state_dict(), "optimizer": optimizer.state_dict(),
+                                "scheduler": scheduler.state_dict(), "epoch": epoch + 1,
+                                "global_step": global_step, "rng": _rng_state(),
+                                "numpy_rng": rng.bit_generator.state, "config": cfg.to_dict(),
+                                "model_config": cfg.model.to_dict(), "history": history,
+                                "best_metric": best_metric, "best_epoch": best_epoch}, last_path)
+            _atomic_write_text(json.dumps({"best_epoch": best_epoch, "history": history}, indent=1),
+                               out_dir / "history.json")
+        if history:
+            plot_history(history, out_dir / "history.png")
+        return TrainResult(best_path, last_path, history, float(np.mean(speeds)) if speeds else float("nan"))
+    finally:
+        torch.set_num_threads(old_threads)
+
+
+def load_model(path: str | Path, device: str | torch.device = "auto") -> tuple[OrientationNet, dict]:
+    """Rebuild the network from a checkpoint's embedded config; returns (model in eval mode, checkpoint)."""
+    device = resolve_device(device)
+    ck = torch.load(Path(path), map_location=device, weights_only=True)
+    model = OrientationNet(ModelConfig.from_dict(ck["model_config"]))
+    model.load_state_dict(ck["model"])
+    return model.to(device).eval(), ck
+
+
+def plot_history(history: list[dict], path: str | Path) -> Path:
+    """Save a PNG: training loss per epoch (left), validation accuracies in % (right)."""
+    # Figure + Agg canvas directly: no global pyplot/backend state is touched.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 3.5))
+    FigureCanvasAgg(fig)
+    ax1, ax2 = fig.subplots(1, 2)
+    ep = [h["epoch"] for h in history]
+    ax1.plot(ep, [h["train_loss"] for h in history], marker=".")
+    ax1.set(xlabel="epoch", ylabel="train loss", title="training loss")
+    val = [(h["epoch"], h["val"]) for h in history if h.get("val")]
+    if val:
+        ax2.plot([e for e, _ in val], [100 * v["class_acc"] for _, v in val], marker=".", label="class acc")
+        ax2.plot([e for e, _ in val], [100 * v["rot_acc"] for _, v in val], marker=".",
+                 label=f"rot acc (<{ROT_THRESHOLD_DEG:.0f} deg)")
+        ax2.legend()
+    ax2.set(xlabel="epoch", ylabel="%", title="validation (seen objects)")
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    return path
