@@ -39,13 +39,21 @@ contrast, while textured patches (std >> 0.01) are normalised almost exactly.
 
 LOCAL_NORM_CLAMP = 6.0
 
-# Budgets (elements) for the float32 blocks q_i * r_j formed when fusing many
-# pairs. 2**17 floats = 512 kB stays in a CPU core's L2 cache, which measured
-# ~3x faster than larger blocks for the three passes over each block (product,
-# logits, weighted sum). With autograd, blocks are checkpointed and the Python
-# overhead per block matters more than cache, so they are larger.
+# Block budgets (elements) for the float32 products q_i * r_j formed when
+# fusing many pairs. 2**17 floats = 512 kB stays in a CPU core's L2 cache,
+# which measured 2-3x faster than larger blocks for the passes over each block.
+# With autograd, blocks are checkpointed and Python overhead per block
+# matters more than cache, so they are larger.
 _BLOCK_ELEMENTS = 2 ** 17
 _BLOCK_ELEMENTS_GRAD = 2 ** 22
+# References per slice in the bilinear-logit path (slice * C * X <= this): the
+# float32 copy of the slice that the batched matmul needs stays at 16 MB.
+_SLICE_ELEMENTS = 2 ** 22
+# From this many queries on, logits come from the bilinear form (one batched
+# matmul shared by all queries) instead of from each query's product block.
+# Measured at 128 px, one thread: Q=1 blocked 1.6x faster, Q=2 about even,
+# Q=4 bilinear 2x faster, Q=16 3.3x.
+_BILINEAR_MIN_QUERIES = 2
 
 
 # --------------------------------------------------------------------------- config
@@ -329,9 +337,14 @@ def _fuse_block(fusion: "Fusion", w: torch.Tensor, b: torch.Tensor,
         normalised fusion weights computed from the logits W (q*r) + b.
     """
     prod = r * q                                                  # (Rb, C, X) local similarity
-    logits = torch.matmul(w, prod) + b[:, None]                   # (Rb, K, X)
+    logits = torch.bmm(w.expand(prod.shape[0], -1, -1), prod) + b[:, None]                # (Rb, K, X)
     a = torch.softmax(fusion.log_weights(logits), dim=-1)        # (Rb, X)
-    return torch.bmm(prod, a.unsqueeze(-1)).squeeze(-1)
+    return (prod * a.unsqueeze(1)).sum(-1)  # thin bmm is slow on CPU (benchmarks/hotpath_ab.py)
+
+
+def _weighted_block(a: torch.Tensor, q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """v[j, c] = sum_x a[j, x] q[c, x] r[j, c, x]; a (Rb,X), q (C,X), r (Rb,C,X) -> (Rb,C)."""
+    return torch.bmm(r * q, a.unsqueeze(-1)).squeeze(-1)
 
 
 class OrientationNet(nn.Module):
@@ -402,27 +415,42 @@ class OrientationNet(nn.Module):
     def _fused_vectors(self, level: int, q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
         """Per-level fused vectors for all pairs: q (Q,C,X), r (R,C,X) -> (Q, R, C).
 
-        The logit conv is bilinear in (q, r), so the logits could be one
-        batched matmul over locations; on CPU that form (X tiny GEMMs on a
-        transposed copy of r) measured ~10x slower than forming q_i*r in
-        cache-sized blocks and reusing each block for the logits and the
-        weighted sum. Blocks are (one query, Rb references) with Rb*C*X
-        bounded, so memory never grows with R or Q. With autograd each block
-        is checkpointed, so backward keeps only its inputs.
+        v[i, j, c] = sum_x a_ij(x) q_ic(x) r_jc(x). The three factors share x,
+        so no order of contractions avoids a Q*R*C*X intermediate; it is
+        formed in blocks of (one query, Rb references) with Rb*C*X bounded,
+        so memory never grows with Q or R. With autograd each block is
+        checkpointed, so backward keeps only its inputs, not the blocks.
+
+        The logits l_ij(x) = sum_c W_c q_ic(x) r_jc(x) + b are bilinear in
+        (q, r). With several queries they are computed for all queries at
+        once as a batched matmul over x (W folded into q); with a single
+        query it is cheaper to take them from each product block, which is
+        in cache anyway (see ``_BILINEAR_MIN_QUERIES``).
         """
         w, b = self._fusion_params(level)
         nq, c, nx = q.shape
         grad = torch.is_grad_enabled() and (q.requires_grad or r.requires_grad or w.requires_grad)
         rb = max(1, (_BLOCK_ELEMENTS_GRAD if grad else _BLOCK_ELEMENTS) // (c * nx))
-        rows = []
-        for i in range(nq):
-            cols = []
-            for s in range(0, r.shape[0], rb):
-                args = (self.fusion, w, b, q[i], r[s:s + rb])
-                cols.append(checkpoint(_fuse_block, *args, use_reentrant=False) if grad
-                            else _fuse_block(*args))
-            rows.append(torch.cat(cols, 0))
-        return torch.stack(rows, 0)
+
+        def run(fn, *args):
+            return checkpoint(fn, *args, use_reentrant=False) if grad else fn(*args)
+
+        if nq < _BILINEAR_MIN_QUERIES:
+            return torch.stack([torch.cat([run(_fuse_block, self.fusion, w, b, q[i], r[s:s + rb])
+                                           for s in range(0, r.shape[0], rb)], 0) for i in range(nq)], 0)
+        k = w.shape[0]
+        qw = (q.unsqueeze(1) * w[None, :, :, None]).reshape(nq * k, c, nx)  # (Q*K, C, X)
+        step = max(1, _SLICE_ELEMENTS // (c * nx))
+        out = []
+        for s0 in range(0, r.shape[0], step):
+            rs = r[s0:s0 + step].float()
+            logits = torch.einsum("mcx,rcx->mrx", qw, rs)                   # (Q*K, Rs, X)
+            logits = logits.reshape(nq, k, -1, nx).transpose(1, 2) + b[:, None]
+            a = torch.softmax(self.fusion.log_weights(logits), dim=-1)      # (Q, Rs, X)
+            out.append(torch.stack([torch.cat([run(_weighted_block, a[i, s:s + rb], q[i], rs[s:s + rb])
+                                               for s in range(0, rs.shape[0], rb)], 0)
+                                    for i in range(nq)], 0))
+        return torch.cat(out, 1)
 
     def _score_chunk(self, q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
         """q (Q,C,L) float32, r (Rc,C,L) float16/32 on the same device -> (Q, Rc)."""
@@ -447,8 +475,10 @@ class OrientationNet(nn.Module):
                 chunk at a time and promoted to float32 block by block.
             chunk: references per chunk. Peak extra memory is about one
                 chunk on q's device (``chunk * C * L`` elements of r's dtype)
-                plus the (Q, chunk, C) fused vectors; the float32 q*r blocks
-                are capped at 0.5 MB (16 MB with autograd).
+                plus the (Q, chunk, C) fused vectors; the float32 working
+                blocks are capped (q*r blocks 0.5 MB, 16 MB with autograd;
+                with several queries a 16 MB float32 slice of r plus its
+                logits, about Q x 0.25 MB), whatever R and chunk.
 
         Returns:
             (Q, R) float32 scores: tanh output of the fusion head in (-1, 1),

@@ -345,7 +345,8 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
         train_refs: training object name -> references (N, S, S, 3) uint8;
             all training objects, the pool of positives and random references.
         train_queries: name -> training queries (a subset of the objects above).
-        val_refs: name -> a small subset of references per training object.
+        val_refs: name -> a small subset of references per training object
+            (cover every training object: validation classifies among them).
         val_queries: name -> held-out views of training objects (not in
             train_queries). Empty dicts skip validation.
         out_dir: where checkpoints and history go (created).
@@ -365,6 +366,9 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
     if not set(val_refs) <= set(names) or not set(val_queries) <= set(names):
         raise ValueError("val_refs/val_queries: validation must use training (seen) objects only, got "
                          f"{sorted((set(val_refs) | set(val_queries)) - set(names))}")
+    if not set(val_queries) <= set(val_refs):
+        raise ValueError(f"val_queries: objects {sorted(set(val_queries) - set(val_refs))} have no "
+                         "validation references in val_refs")
     size = cfg.model.image_size
     for views, what in ((train_refs, "train_refs"), (train_queries, "train_queries"),
                         (val_refs, "val_refs"), (val_queries, "val_queries")):

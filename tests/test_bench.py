@@ -1,0 +1,89 @@
+"""The benchmark script runs end to end in a tiny configuration and writes a complete JSON."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.gl  # renders (in worker processes and in-process)
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench.py"
+
+
+def _load_bench():
+    spec = importlib.util.spec_from_file_location("bench_under_test", BENCH)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses resolve annotations through sys.modules
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _positive(d: dict, *keys: str) -> None:
+    for k in keys:
+        v = d[k]
+        assert isinstance(v, (int, float)) and math.isfinite(v) and v > 0, (k, v)
+
+
+def test_bench_tiny_run_writes_complete_json(tmp_path):
+    bench = _load_bench()
+    cfg = bench.BenchConfig(
+        mode="tiny", render_objects=1, render_refs_per_object=4, render_size=32, render_repeats=1,
+        render_warmup=0, inproc_renders=4, sizes=(64,), train_queries=2, train_refs=4, train_steps=1,
+        train_warmup=0, encode_batch=4, encode_repeats=1, fusion_refs_q1=32, fusion_q=2, fusion_refs_qmany=8,
+        fusion_repeats=1, gemm_n=256, gemm_repeats=1, retr_objects=2, retr_refs=(40, 80), retr_fast_queries=2,
+        retr_greedy_queries=1, real_refs=24, real_queries=1, real_objects=2, retry_contended=0)
+    out = tmp_path / "bench.json"
+    bench.run(cfg, out, tmp_root=str(tmp_path))
+    res = json.loads(out.read_text())
+
+    for k in ("schema_version", "config", "provenance", "render", "train", "encode", "gemm", "fusion",
+              "retrieval_synthetic", "retrieval_real", "cache_bytes_13x10000", "memory", "targets", "summary"):
+        assert k in res, k
+    assert res["provenance"]["name"] == "bench" and "git" in res["provenance"]
+
+    r = res["render"]
+    for w in (0, 1, 2):
+        _positive(r[f"render_sets_workers_{w}"], "renders_per_s", "median_s")
+        assert r[f"render_sets_workers_{w}"]["repeats"] == 1
+    _positive(r["render_reference_in_process"], "renders_per_s")
+
+    _positive(res["train"]["64"], "images_per_s", "queries_per_s")
+    _positive(res["encode"]["64"], "refs_per_s")
+    assert res["encode"]["64"]["feature_shape"] == [128, 16 * 16 + 8 * 8 + 5 * 5]
+    _positive(res["gemm"], "gflops_per_s")
+
+    f = res["fusion"]["64"]
+    # Count from model.score: per level (2K+3)*C*X + (K + 7)*X with K=2, plus the MLP head.
+    L, C = 345, 128
+    head = 2 * 384 * 128 + 128 + 128 + 2 * 128 + 1 + 1
+    assert f["flops_per_pair"] == 7 * C * L + 9 * L + head
+    for q in ("Q1", "Q2"):
+        _positive(f[q], "pair_scores_per_s", "achieved_gflops_per_s", "fraction_of_gemm")
+        assert f[q]["fraction_of_gemm"] < 1.5
+
+    rs = res["retrieval_synthetic"]
+    assert rs["L_matches_encode"] is True
+    for key in ("2x40", "2x80"):
+        b = rs["banks"][key]
+        _positive(b["fast"], "s_per_query_median", "comparisons_per_query_median")
+        _positive(b["greedy"], "s_per_query_median")
+        assert b["greedy"]["comparisons_per_query_median"] == b["pairs_total"]
+        _positive(b, "speedup_greedy_over_fast")
+    assert rs["write"]["bytes_on_disk"] == rs["write"]["bytes_from_shape"] == 2 * 80 * C * L * 2
+
+    rr = res["retrieval_real"]
+    assert 0.0 <= rr["agreement_same_reference"] <= 1.0 and rr["n_queries"] == 2
+    for m in ("fast", "greedy"):
+        assert 0.0 <= rr[m]["rot_acc_pct"] <= 100.0
+        _positive(rr[m], "s_per_query_median")
+
+    assert res["cache_bytes_13x10000"]["64"]["bytes"] == 13 * 10_000 * C * L * 2
+    t = res["targets"]
+    assert t["cache_bytes_13x10000_64px"]["met"] is True and t["cache_bytes_13x10000_128px"]["met"] is False
+    assert t["fast_s_per_query_13x10000"]["met"] is None and t["fast_s_per_query_13x10000"]["reason"]
+    _positive(res["memory"]["peak"], "maxrss_bytes")

@@ -1,0 +1,85 @@
+import json
+
+import pytest
+
+from helpers.params import (ParameterError, check_mapping, check_parameters, declared_parameters, notebook_path,
+                            parameters_source)
+from helpers.runner import notebooks, preset_parameters
+
+
+def test_every_notebook_has_a_literal_parameters_cell():
+    names = notebooks()
+    assert names[:3] == ["01_render", "02_train", "03_evaluate"] and len(names) == 8
+    for n in names:
+        d = declared_parameters(notebook_path(n))
+        assert "out_dir" in d and d["out_dir"] == f"reports/smoke/{n}"
+        src = parameters_source(notebook_path(n))
+        # every parameter line carries a comment
+        for line in src.splitlines():
+            if "=" in line:
+                assert "#" in line, f"{n}: parameter line without a comment: {line}"
+
+
+def test_notebooks_are_committed_without_outputs():
+    from helpers.params import NOTEBOOK_DIR
+
+    for p in NOTEBOOK_DIR.glob("*.ipynb"):
+        nb = json.loads(p.read_text())
+        for c in nb["cells"]:
+            if c["cell_type"] == "code":
+                assert c.get("outputs") == [] and c.get("execution_count") is None, f"{p.name} has outputs"
+
+
+def test_unknown_and_mistyped_parameters():
+    declared = {"epochs": 2, "lr": 0.1, "name": "x", "flag": True, "levels": [1, 2]}
+    assert check_mapping("nb", declared, {"lr": 1})["lr"] == 1.0  # int accepted for float
+    with pytest.raises(ParameterError, match=r"nb: unknown parameter\(s\) \['epoch'\]"):
+        check_mapping("nb", declared, {"epoch": 3})
+    with pytest.raises(ParameterError, match="'epochs' expects int, got str '3'"):
+        check_mapping("nb", declared, {"epochs": "3"})
+    with pytest.raises(ParameterError, match="'epochs' expects int, got bool"):
+        check_mapping("nb", declared, {"epochs": True})
+    with pytest.raises(ParameterError, match="'levels' expects list of int"):
+        check_mapping("nb", declared, {"levels": [1, "2"]})
+    with pytest.raises(ParameterError, match="'flag' expects bool"):
+        check_mapping("nb", declared, {"flag": 1})
+
+
+def test_kernel_namespace_check():
+    ns = {"In": [], "Out": {}, "_": None, "get_ipython": print, "epochs": 2, "out_dir": "x"}
+    d = declared_parameters(notebook_path("02_train"))
+    ns.update({k: v for k, v in d.items()})
+    assert check_parameters("02_train", ns)["epochs"] == d["epochs"]
+    ns["epoch"] = 5  # a typo papermill would inject silently
+    with pytest.raises(ParameterError, match="epoch"):
+        check_parameters("02_train", ns)
+
+
+def test_all_presets_validate_and_bad_preset_is_refused(tmp_path, monkeypatch):
+    for preset in ("smoke", "quick", "paper"):
+        for n in notebooks():
+            p = preset_parameters(preset, n)
+            assert p["out_dir"] == f"reports/{preset}/{n}"
+    with pytest.raises(ParameterError, match="preset must be one of"):
+        preset_parameters("huge", "02_train")
+    import helpers.runner as r
+
+    (tmp_path / "quick").mkdir()
+    (tmp_path / "quick" / "02_train.yaml").write_text("epochs: ten\n")
+    monkeypatch.setattr(r, "PRESET_DIR", tmp_path)
+    with pytest.raises(ParameterError, match=r"02_train.yaml.*'epochs' expects int"):
+        preset_parameters("quick", "02_train")
+
+
+@pytest.mark.slow
+def test_papermill_run_with_a_wrong_parameter_fails_clearly(tmp_path):
+    import papermill as pm
+
+    from helpers.params import notebook_path
+
+    with pytest.raises(pm.PapermillExecutionError, match="unknown parameter.*n_referencez"):
+        pm.execute_notebook(str(notebook_path("01_render")), str(tmp_path / "o.ipynb"),
+                            parameters={"n_referencez": 3}, kernel_name="python3", progress_bar=False)
+    with pytest.raises(pm.PapermillExecutionError, match="'n_references' expects int, got str"):
+        pm.execute_notebook(str(notebook_path("01_render")), str(tmp_path / "o.ipynb"),
+                            parameters={"n_references": "many"}, kernel_name="python3", progress_bar=False)

@@ -1,0 +1,212 @@
+"""Augmentation, training steps, deterministic resume, validation and checkpoints."""
+
+import json
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+import helpers.train as train_mod
+from helpers.augment import AugmentConfig, augment_batch, augment_image
+from helpers.losses import pair_weights, weighted_info_nce
+from helpers.model import ModelConfig, OrientationNet, images_to_tensor
+from helpers.rotations import geodesic_deg, haar_uniform, inplane_rotate_label
+from helpers.train import TrainConfig, load_model, plot_history, train, train_step, validate
+from helpers.views import ObjectViews
+
+SIZE = 64
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """One intra-op thread: on a shared 2-core machine, OpenMP with 2 threads
+    slows down >10x as soon as another process holds a core; tiny test batches
+    gain nothing from a second thread anyway."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def make_views(name: str, n: int, seed: int, obj: int = 0, background: bool = False) -> ObjectViews:
+    """Simple drawn 'renders': an asymmetric 3D stick figure projected with each rotation."""
+    rng = np.random.default_rng(seed)
+    rots = haar_uniform(n, rng).astype(np.float32)
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 0.6, 0], [0, 0, 0.3], [0.5, 0.5, 0]], np.float64) - 0.2
+    pts[:, obj % 3] *= 1.5  # objects differ in shape
+    colours = [(255, 60, 60), (60, 255, 60), (60, 60, 255), (255, 255, 0)]
+    imgs = np.zeros((n, SIZE, SIZE, 3), np.uint8)
+    for i in range(n):
+        if background:
+            imgs[i] = rng.integers(0, 80, (SIZE, SIZE, 3), dtype=np.uint8)
+        p = (pts @ rots[i].T.astype(np.float64))[:, :2] * SIZE * 0.35 + SIZE / 2
+        for k in range(1, len(p)):
+            cv2.line(imgs[i], tuple(int(v) for v in p[0]), tuple(int(v) for v in p[k]), colours[k - 1], 3)
+    return ObjectViews(name, imgs, rots, kind="query" if background else "reference")
+
+
+def tiny_data():
+    names = ["aa", "bb"]
+    refs = {n: make_views(n, 24, 10 + i, i) for i, n in enumerate(names)}
+    queries = {n: make_views(n, 6, 20 + i, i, background=True) for i, n in enumerate(names)}
+    val_refs = {n: refs[n].subset(np.arange(0, 24, 3)) for n in names}
+    val_queries = {n: make_views(n, 3, 30 + i, i, background=True) for i, n in enumerate(names)}
+    return refs, queries, val_refs, val_queries
+
+
+def tiny_cfg(**kw) -> TrainConfig:
+    base = dict(epochs=3, steps_per_epoch=2, batch_size=2, lr=1e-3, lr_milestones=(2,), seed=3,
+                device="cpu", progress=False, num_threads=1, model=ModelConfig(image_size=SIZE, channels=32))
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+# ---------------------------------------------------------------------- augment
+
+def test_augment_is_deterministic_and_updates_label():
+    img = make_views("x", 1, 0, background=True).images[0]
+    R = haar_uniform(1, 1)[0]
+    cfg = AugmentConfig(occlusion=True, occlusion_p=1.0, blur_p=1.0)
+    a1, r1 = augment_image(img, R, np.random.default_rng(5), cfg)
+    a2, r2 = augment_image(img, R, np.random.default_rng(5), cfg)
+    assert a1.dtype == np.uint8 and a1.shape == img.shape
+    assert np.array_equal(a1, a2) and np.array_equal(r1, r2)
+    assert not np.array_equal(a1, img)
+    # The label moved by an in-plane rotation only: R' = Rz R with |angle| <= inplane_deg.
+    delta = r1 @ R.T
+    assert np.allclose(delta[2], [0, 0, 1], atol=1e-9) and geodesic_deg(r1, R) <= cfg.inplane_deg + 1e-6
+    # Same draw with only the in-plane switch: the label equals inplane_rotate_label at that angle.
+    only = AugmentConfig(hsv=False, noise=False, blur=False)
+    _, r3 = augment_image(img, R, np.random.default_rng(5), only)
+    angle = np.degrees(np.arctan2(delta[0, 1], delta[0, 0]))  # delta = rot_z(-angle): [0,1] = sin(angle)
+    assert np.allclose(r3, inplane_rotate_label(R, angle), atol=1e-9)
+    off, roff = augment_image(img, R, np.random.default_rng(5), AugmentConfig(enabled=False))
+    assert off is img and np.array_equal(roff, R)
+    imgs, rots = augment_batch(np.stack([img, img]), np.stack([R, R]), np.random.default_rng(0), cfg)
+    assert imgs.shape == (2, SIZE, SIZE, 3) and rots.shape == (2, 3, 3)
+    with pytest.raises(ValueError, match="blur_p"):
+        AugmentConfig(blur_p=2.0)
+
+
+# ------------------------------------------------------------------------ config
+
+def test_train_config_validation_and_roundtrip():
+    cfg = tiny_cfg(augment=AugmentConfig(hue_deg=5.0))
+    again = TrainConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
+    assert again == cfg
+    for kw, field in [({"epochs": 0}, "epochs"), ({"batch_size": 1.5}, "batch_size"), ({"lr": 0}, "lr"),
+                      ({"lr_milestones": (5, 2)}, "lr_milestones"), ({"tau": -1}, "tau"),
+                      ({"steps_per_epoch": 0}, "steps_per_epoch"), ({"model": 3}, "model")]:
+        with pytest.raises(ValueError, match=field):
+            tiny_cfg(**kw)
+
+
+# ------------------------------------------------------------------------- train
+
+def test_few_steps_reduce_loss_on_fixed_batch():
+    torch.manual_seed(0)
+    model = OrientationNet(ModelConfig(image_size=SIZE, channels=32, dropout=0.0))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    refs = make_views("a", 8, 1)
+    q_rot = refs.rotations[:4].astype(np.float64)
+    images = images_to_tensor(np.concatenate([refs.images[:4], refs.images[:4], refs.images[4:8]]))
+    q_obj, r_obj = np.zeros(4, int), np.zeros(8, int)
+    r_rot = np.concatenate([q_rot, refs.rotations[4:8]])
+    losses = [train_step(model, opt, images, q_obj, q_rot, r_obj, r_rot) for _ in range(6)]
+    assert losses[-1] < losses[0]
+    # train_step reports exactly the loss of the batch before its update.
+    with torch.no_grad():
+        f = model.encode(images)
+        s = model.score(f[:4], f[4:])
+        now = weighted_info_nce(s, torch.arange(4), pair_weights(q_obj, q_rot, r_obj, r_rot))
+    assert float(now) < losses[0]
+
+
+def _weights(path):
+    return torch.load(path, weights_only=True)["model"]
+
+
+def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch):
+    data = tiny_data()
+    cfg = tiny_cfg()
+    full = train(cfg, *data, tmp_path / "full")
+    assert [h["epoch"] for h in full.history] == [1, 2, 3]
+    assert full.history[2]["lr"] == pytest.approx(1e-4)  # milestone after epoch 2
+
+    # Interrupt in the middle of epoch 3 (step 5 of 6): last.pt holds epoch 2.
+    calls = {"n": 0}
+    real_step = train_mod.train_step
+
+    def flaky(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 6:
+            raise KeyboardInterrupt
+        return real_step(*a, **k)
+
+    monkeypatch.setattr(train_mod, "train_step", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, *data, tmp_path / "cut")
+    monkeypatch.setattr(train_mod, "train_step", real_step)
+    assert torch.load(tmp_path / "cut" / "last.pt", weights_only=True)["epoch"] == 2
+
+    resumed = train(cfg, *data, tmp_path / "cut")
+    assert [h["epoch"] for h in resumed.history] == [1, 2, 3]
+    a, b = _weights(full.last_path), _weights(resumed.last_path)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    for h1, h2 in zip(full.history, resumed.history):
+        assert h1["train_loss"] == h2["train_loss"] and h1["val"] == h2["val"] and h1["lr"] == h2["lr"]
+    ck = torch.load(resumed.last_path, weights_only=True)
+    assert ck["global_step"] == 6 and ck["epoch"] == 3
+
+    # Nothing left to do: a second resume returns the stored history untouched.
+    again = train(cfg, *data, tmp_path / "cut")
+    assert len(again.history) == 3 and np.isnan(again.train_images_per_s)
+    # A resume with a different trajectory-relevant setting is refused.
+    with pytest.raises(ValueError, match="lr"):
+        train(replace(cfg, lr=5e-4, epochs=4), *data, tmp_path / "cut")
+
+
+def test_outputs_best_checkpoint_and_load(tmp_path):
+    data = tiny_data()
+    cfg = tiny_cfg(epochs=2, steps_per_epoch=None, val_every=1, weighted_loss=False, occlusion=True)
+    res = train(cfg, *data, tmp_path)
+    # steps_per_epoch=None: one pass over 12 queries with batch 2.
+    assert res.history[-1]["global_step"] == 12
+    hist = json.loads((tmp_path / "history.json").read_text())
+    assert len(hist["history"]) == 2 and hist["best_epoch"] in (1, 2)
+    assert (tmp_path / "history.png").stat().st_size > 0
+    assert res.best_path.exists() and res.train_images_per_s > 0
+    for h in res.history:
+        assert set(h["val"]) == {"class_acc", "rot_acc", "median_err_deg"}
+    model, ck = load_model(res.best_path, device="cpu")
+    assert not model.training and model.cfg == cfg.model
+    assert ck["epoch"] == hist["best_epoch"]
+    best_val = max(h["val"]["rot_acc"] for h in res.history)
+    assert ck["val"]["rot_acc"] == best_val
+
+
+def test_validate_perfect_when_queries_are_references():
+    torch.manual_seed(0)
+    model = OrientationNet(ModelConfig(image_size=SIZE, fusion="avg", channels=32))
+    refs = {n: make_views(n, 6, 40 + i, i) for i, n in enumerate(["aa", "bb"])}
+    out = validate(model, refs, refs, device="cpu", batch_size=4)
+    assert out["class_acc"] == 1.0 and out["rot_acc"] == 1.0
+    assert out["median_err_deg"] == pytest.approx(0.0, abs=0.01)  # float32 rotations
+    assert set(out["per_object"]) == {"aa", "bb"}
+
+
+def test_train_rejects_unseen_validation_objects(tmp_path):
+    refs, queries, val_refs, val_queries = tiny_data()
+    extra = {"zz": make_views("zz", 2, 99)}
+    with pytest.raises(ValueError, match="seen"):
+        train(tiny_cfg(), refs, queries, {**val_refs, **extra}, {**val_queries, **extra}, tmp_path)
+    with pytest.raises(ValueError, match="model expects"):
+        train(tiny_cfg(model=ModelConfig(image_size=128)), refs, queries, val_refs, val_queries, tmp_path)
+
+
+def test_plot_history_without_validation(tmp_path):
+    path = plot_history([{"epoch": 1, "train_loss": 2.0, "val": None},
+                         {"epoch": 2, "train_loss": 1.5, "val": None}], tmp_path / "h.png")
+    assert path.stat().st_size > 0
