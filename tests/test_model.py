@@ -10,17 +10,6 @@ from helpers.model import (ModelConfig, OrientationNet, count_parameters, images
                            preprocess)
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One intra-op thread: on a shared 2-core machine, OpenMP with 2 threads
-    slows down >10x as soon as another process holds a core; tiny test batches
-    gain nothing from a second thread anyway."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _model(**kw) -> OrientationNet:
     torch.manual_seed(0)
     return OrientationNet(ModelConfig(**kw)).eval()

@@ -19,17 +19,6 @@ from helpers.views import ObjectViews
 SIZE = 64
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One intra-op thread: on a shared 2-core machine, OpenMP with 2 threads
-    slows down >10x as soon as another process holds a core; tiny test batches
-    gain nothing from a second thread anyway."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def make_views(name: str, n: int, seed: int, obj: int = 0, background: bool = False) -> ObjectViews:
     """Simple drawn 'renders': an asymmetric 3D stick figure projected with each rotation."""
     rng = np.random.default_rng(seed)

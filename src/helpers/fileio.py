@@ -8,6 +8,7 @@ file that a later run would mistake for a finished one.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import tempfile
@@ -85,21 +86,10 @@ def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:
 
 
 def atomic_save_npy(path: str | os.PathLike, array: np.ndarray) -> Path:
-    """Save one array as ``.npy`` atomically."""
-    path = Path(path)
-    _check_writable(path.parent)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, array)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    """Save one array as ``.npy`` atomically (serialised in memory first)."""
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return atomic_write_bytes(path, buf.getvalue())
 
 
 def read_json(path: str | os.PathLike) -> Any:
