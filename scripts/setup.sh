@@ -27,7 +27,7 @@ have="$(cat .venv/.setup-stamp 2>/dev/null || true)"
 if [ "$want" != "$have" ]; then
   echo "setup: installing environment.lock into .venv"
   .venv/bin/python -m pip install -q --upgrade "pip==25.3"
-  # --no-deps: the lock is complete; it also keeps the mesh-source packages
+  # --no-deps: the lock is complete (setuptools included, for the editable build below); it also keeps the mesh-source packages
   # (robosuite, metaworld, ...) from pulling simulators we never import.
   .venv/bin/python -m pip install -q --no-deps -r environment.lock
   .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e .
