@@ -273,13 +273,6 @@ def render_sets(specs: list[ViewSetSpec], cache: str | os.PathLike | None = None
     return out
 
 
-def load_split_views(objects: list[str], kind: str, n: int, seed: int = 0, render: RenderConfig = RenderConfig(),
-                     style: QueryStyle = QueryStyle(), background_split: str = "train", **kw) -> dict[str, ObjectViews]:
-    """Convenience: one view set per object, returned as {name: ObjectViews}."""
-    specs = [ViewSetSpec(o, kind, n, seed, render, style, background_split) for o in objects]
-    return dict(zip(objects, render_sets(specs, **kw)))
-
-
 def clear_incomplete(cache: str | os.PathLike | None = None) -> int:
     """Delete view-set folders without meta.json (returns how many)."""
     root = cache_dir(cache) / "renders"

@@ -141,16 +141,13 @@ def examples_figure(data: StudyData, res: dict, path: Path, n: int = 6) -> Path:
     pq = res["per_query"]
     picks = pq.groupby("obj").head(max(1, n // max(1, pq["obj"].nunique()) + 1)).head(n)
     recs = {r.query_id: r for r in res["records"]}
-    bank = res.get("bank")
     fig, axes = plt.subplots(2, len(picks), figsize=(1.8 * len(picks), 4), squeeze=False)
     for j, (_, row) in enumerate(picks.iterrows()):
         name, i = row["query_id"].rsplit(":", 1)
         axes[0, j].imshow(data.test_q[name].images[int(i)] if name in data.test_q else np.zeros((8, 8, 3)))
         axes[0, j].set_title(f"{name}", fontsize=7)
         rec = recs[row["query_id"]]
-        refs = data.refs[rec.pred_obj]
-        k = int(np.argmax(np.einsum("nij,ij->n", refs.rotations.astype(np.float64), rec.R_est)))
-        axes[1, j].imshow(refs.images[k])
+        axes[1, j].imshow(_retrieved_image(data, rec))
         axes[1, j].set_title(f"→ {rec.pred_obj}\n{row['err_deg']:.0f}°", fontsize=7,
                              color="green" if row["rot_ok"] else "red")
         for a in axes[:, j]:
@@ -158,8 +155,14 @@ def examples_figure(data: StudyData, res: dict, path: Path, n: int = 6) -> Path:
             a.set_yticks([])
     axes[0, 0].set_ylabel("query", fontsize=8)
     axes[1, 0].set_ylabel("retrieved", fontsize=8)
-    del bank
     return save(fig, path)
+
+
+def _retrieved_image(data: StudyData, rec) -> np.ndarray:
+    """The reference image a prediction retrieved: the predicted object's view at R_est."""
+    refs = data.refs[rec.pred_obj]
+    k = int(np.argmax(np.einsum("nij,ij->n", refs.rotations.astype(np.float64), rec.R_est)))
+    return refs.images[k]
 
 
 def fusion_maps_figure(model, data: StudyData, res: dict, path: Path, n: int = 4, device: str = "auto") -> Path | None:
@@ -174,14 +177,11 @@ def fusion_maps_figure(model, data: StudyData, res: dict, path: Path, n: int = 4
     plt = _plt()
     dev = resolve_device(device)
     recs = res["records"][:n]
-    fig, axes = None, None
     rows = []
     for rec in recs:
         name, i = rec.query_id.rsplit(":", 1)
         q_img = data.test_q[name].images[int(i):int(i) + 1]
-        refs = data.refs[rec.pred_obj]
-        k = int(np.argmax(np.einsum("nij,ij->n", refs.rotations.astype(np.float64), rec.R_est)))
-        r_img = refs.images[k:k + 1]
+        r_img = _retrieved_image(data, rec)[None]
         qf = next(encode_views(model, q_img, device=dev)).to(dev)
         rf = next(encode_views(model, r_img, device=dev)).to(dev)
         with torch.inference_mode():

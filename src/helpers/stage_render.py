@@ -15,26 +15,6 @@ from .study import DataConfig, prepare_data
 from .tables import write_table
 
 
-def resolve_objects(spec: list[str] | str, manifest=None) -> list[str]:
-    """``"all"``, ``"benchmark"`` (LineMOD-like 13), ``"held-out"``, ``"split1"``..``"split3"``
-    or an explicit list of manifest names."""
-    m = manifest or load_manifest()
-    if isinstance(spec, str):
-        if spec == "all":
-            return m.object_names()
-        if spec == "benchmark":
-            return m.object_names("train")
-        if spec == "held-out":
-            return m.held_out_objects()
-        if spec.startswith("split") and spec[5:] in ("1", "2", "3"):
-            return m.split_objects(int(spec[5:]))
-        raise ValueError(f"objects: expected 'all', 'benchmark', 'held-out', 'split1'..'split3' or a list of "
-                         f"names, got {spec!r}")
-    for n in spec:
-        m.object(n)
-    return list(spec)
-
-
 def object_table(manifest=None) -> pd.DataFrame:
     """One row per manifest object: role, split, source package/version, file, sha256 prefix."""
     m = manifest or load_manifest()

@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import torch
 
 from .datasets import ViewSetSpec, render_sets
@@ -230,7 +229,3 @@ def summary_row(label: str, res: dict[str, Any]) -> dict[str, Any]:
     return {"setting": label, "class_acc": m.get("class_acc"), "rot_acc": m.get("rot_acc"),
             "median_err_deg": m.get("median_err_deg"), "n_queries": int(res["per_object"]["n"].sum()),
             "s_per_query": float(np.median(res["seconds_per_query"])) if res["seconds_per_query"] else None}
-
-
-def to_frame(rows: list[dict]) -> pd.DataFrame:
-    return pd.DataFrame(rows)
