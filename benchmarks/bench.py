@@ -88,6 +88,8 @@ class BenchConfig:
     retr_refs: tuple = (1000, 10_000)
     retr_fast_queries: int = 10
     retr_greedy_queries: int = 3
+    retr_batch_queries: int = 32  # queries through the batched fast search (anchor stage shared)
+    retr_query_batch: int = 16  # queries per batched anchor stage
     disk_margin_bytes: int = 2 * 1024 ** 3
     # 5b. fast vs greedy on a small real (rendered) set
     real_refs: int = 512
@@ -109,6 +111,7 @@ QUICK = BenchConfig(mode="quick", render_objects=2, render_refs_per_object=64, r
                     inproc_renders=32, train_steps=3, train_steps_large=2, encode_repeats=3,
                     encode_repeats_large=2, fusion_refs_q1=1024, fusion_refs_qmany=128, fusion_repeats=2,
                     gemm_repeats=3, retr_refs=(1000, 2000), retr_fast_queries=5, retr_greedy_queries=2,
+                    retr_batch_queries=8, retr_query_batch=4,
                     real_refs=128, real_queries=1)
 
 
@@ -634,7 +637,7 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
     """Fast vs greedy seconds/query over K objects x R references of float16 memmapped features."""
     import torch
 
-    from helpers.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer
+    from helpers.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer, search_all
     from helpers.rotations import haar_uniform
 
     model = _model(cfg.retr_size, cfg.seed, monotone=True).eval()
@@ -682,7 +685,7 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
         names = [f"obj{o:02d}" for o in range(cfg.retr_objects)]
         scorer = model_scorer(model, "cpu")
         rng = np.random.default_rng(cfg.seed + 5)
-        n_q = max(cfg.retr_fast_queries, cfg.retr_greedy_queries)
+        n_q = max(cfg.retr_fast_queries, cfg.retr_greedy_queries, cfg.retr_batch_queries)
         q_obj = rng.integers(0, cfg.retr_objects, n_q)
         q_rot = haar_uniform(n_q, seed=cfg.seed + 6)
         queries = [torch.from_numpy(_smooth_features(bases[o], q_rot[i:i + 1], c, length, 1.0, rng)[0])
@@ -694,11 +697,31 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
             bank = ReferenceBank([m[:r] for m in mms], all_rots[:r], names, k_ac=PAPER_K_AC)
             anchors_s = time.perf_counter() - t0
             _GATE.wait()
+            t0 = time.perf_counter()
+            bank.anchor_feats(PAPER_K_AC)  # once per bank: anchors gathered into RAM
+            anchor_gather_s = time.perf_counter() - t0
             fast_search(warm, bank, scorer, k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)  # warm-up
             fp, fast = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer,
                                      k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)
             _log(f"{key}: fast {fast['s_per_query_median']:.2f} s/query, "
                  f"{fast['comparisons_per_query_median']:.0f} comparisons")
+            _GATE.wait()
+            qb = torch.stack(queries[:cfg.retr_batch_queries])
+            with Probe() as pb:
+                bp = search_all(qb, bank, scorer, method="fast", progress=False, query_batch=cfg.retr_query_batch,
+                                k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)
+            fast_batched = {"n_queries": len(bp), "query_batch": cfg.retr_query_batch,
+                            "wall_s": pb.wall, "s_per_query_mean": pb.wall / len(bp),
+                            "s_per_query_median": statistics.median(p.seconds for p in bp),
+                            "comparisons_per_query_median": statistics.median(p.n_comparisons for p in bp),
+                            "others_cpu_fraction": pb.others,
+                            "same_predictions_as_single_query": float(np.mean(
+                                [a.obj_index == b.obj_index and a.ref_index == b.ref_index
+                                 for a, b in zip(bp, fp)])),
+                            "note": "search_all(method='fast', query_batch): the anchors of query_batch queries "
+                                    "are scored in one many-query pass; each query's seconds = its refinement + "
+                                    "an equal share of its batch's anchor pass; s_per_query_mean = wall / n"}
+            _log(f"{key}: fast batched {fast_batched['s_per_query_mean']:.2f} s/query")
             _GATE.wait()
             gp, greedy = _search_timed(greedy_search, queries[:cfg.retr_greedy_queries], bank, scorer, group=1024)
             _log(f"{key}: greedy {greedy['s_per_query_median']:.2f} s/query")
@@ -709,8 +732,10 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
             out["banks"][key] = {
                 "n_objects": cfg.retr_objects, "R": r, "pairs_total": cfg.retr_objects * r,
                 "anchors_k": int(len(bank.anchors(PAPER_K_AC))), "bank_build_s": anchors_s,
-                "fast": fast, "greedy": greedy,
+                "anchor_gather_s": anchor_gather_s,
+                "fast": fast, "fast_batched": fast_batched, "greedy": greedy,
                 "speedup_greedy_over_fast": greedy["s_per_query_median"] / fast["s_per_query_median"],
+                "speedup_greedy_over_fast_batched": greedy["s_per_query_median"] / fast_batched["s_per_query_mean"],
                 "comparison_ratio_greedy_over_fast": (cfg.retr_objects * r) / fast["comparisons_per_query_median"],
                 "synthetic_agreement_fast_greedy": float(np.mean(agree)) if agree else None,
                 "synthetic_greedy_object_correct": float(np.mean(correct_obj)) if correct_obj else None,
@@ -856,6 +881,19 @@ def evaluate_targets(res: dict) -> dict:
             f"bounded by the comparison ratio {cmp_ratio:.1f} (130,000 pairs vs "
             f"{bank['fast']['comparisons_per_query_median']:.0f}): with k_ac=1024 anchors per object the fast "
             f"search cannot be more than 130000/13312 = 9.8x cheaper in pair scores"}
+        fb = bank.get("fast_batched")
+        if fb:
+            bs, bsp = fb["s_per_query_mean"], bank["speedup_greedy_over_fast_batched"]
+            out["fast_s_per_query_13x10000_batched"] = {
+                "value": bs, "target": f"<= {TARGET_FAST_S_PER_QUERY}", "met": bs <= TARGET_FAST_S_PER_QUERY,
+                "reason": None if bs <= TARGET_FAST_S_PER_QUERY else
+                f"throughput cost per query with the anchor stage of {fb['query_batch']} queries shared; "
+                f"each query still scores ~{fb['comparisons_per_query_median']:.0f} pairs"}
+            out["speedup_fast_batched_vs_greedy"] = {
+                "value": bsp, "target": f">= {TARGET_SPEEDUP}", "met": bsp >= TARGET_SPEEDUP,
+                "reason": None if bsp >= TARGET_SPEEDUP else
+                "greedy is single-query; the batched anchor pass is cheaper per pair than greedy's "
+                "single-query pass, so this can exceed the comparison ratio, but not by the factor needed"}
     else:
         reason = (bank or {}).get("reason") or f"{key} not run in this mode ({res.get('mode')})"
         for k, t in (("fast_s_per_query_13x10000", f"<= {TARGET_FAST_S_PER_QUERY}"),
@@ -983,6 +1021,9 @@ def summarise(res: dict) -> dict:
             s[f"fast_s_per_query_{key}"] = b["fast"]["s_per_query_median"]
             s[f"greedy_s_per_query_{key}"] = b["greedy"]["s_per_query_median"]
             s[f"speedup_{key}"] = b["speedup_greedy_over_fast"]
+            if "fast_batched" in b:
+                s[f"fast_batched_s_per_query_{key}"] = b["fast_batched"]["s_per_query_mean"]
+                s[f"speedup_batched_{key}"] = b["speedup_greedy_over_fast_batched"]
             s[f"fast_comparisons_{key}"] = b["fast"]["comparisons_per_query_median"]
     rr = res.get("retrieval_real")
     if rr:

@@ -36,7 +36,7 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
         render_warmup=0, inproc_renders=4, sizes=(64,), train_queries=2, train_refs=4, train_steps=1,
         train_warmup=0, encode_batch=4, encode_repeats=1, fusion_refs_q1=32, fusion_q=2, fusion_refs_qmany=8,
         fusion_repeats=1, gemm_n=256, gemm_repeats=1, retr_objects=2, retr_refs=(40, 80), retr_fast_queries=2,
-        retr_greedy_queries=1, real_refs=24, real_queries=1, real_objects=2, retry_contended=0)
+        retr_greedy_queries=1, retr_batch_queries=3, retr_query_batch=2, real_refs=24, real_queries=1, real_objects=2, retry_contended=0)
     out = tmp_path / "bench.json"
     bench.run(cfg, out, tmp_root=str(tmp_path))
     res = json.loads(out.read_text())
@@ -73,7 +73,11 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
         _positive(b["fast"], "s_per_query_median", "comparisons_per_query_median")
         _positive(b["greedy"], "s_per_query_median")
         assert b["greedy"]["comparisons_per_query_median"] == b["pairs_total"]
-        _positive(b, "speedup_greedy_over_fast")
+        _positive(b, "speedup_greedy_over_fast", "speedup_greedy_over_fast_batched", "anchor_gather_s")
+        _positive(b["fast_batched"], "s_per_query_mean", "s_per_query_median", "wall_s")
+        assert b["fast_batched"]["n_queries"] == 3 and b["fast_batched"]["query_batch"] == 2
+        # The batched anchor stage changes the cost, not the answer.
+        assert b["fast_batched"]["same_predictions_as_single_query"] == 1.0
     assert rs["write"]["bytes_on_disk"] == rs["write"]["bytes_from_shape"] == 2 * 80 * C * L * 2
 
     rr = res["retrieval_real"]

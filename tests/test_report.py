@@ -28,3 +28,18 @@ def test_report_marks_missing_sections_and_trends(tmp_path):
     assert "adaptive is best: **holds**" in rep
     assert "**does not hold**" in rep
     assert "| adaptive" in rep
+
+
+def test_report_states_noise_of_claims(tmp_path):
+    d = tmp_path / "y" / "08_components"
+    d.mkdir(parents=True)
+    c = {"holds": True, "compare": "b vs a", "diff_pts": 3.0, "ci": [-1.5, 7.25], "verdict": "within noise"}
+    chain = {"holds": False, "verdict": "within noise", "pairs": [c, {**c, "holds": False, "diff_pts": -2.0}]}
+    (d / "metrics.json").write_text(json.dumps({"table": [{"variant": "a", "unseen rot_acc": 1.0}],
+                                                "trend": {"both_beats_neither": c, "order": chain},
+                                                "noise": "paired bootstrap"}))
+    rep = build_report("y", root=tmp_path).read_text()
+    assert "both beats neither: **holds** in the point estimate (b vs a: +3.0 pts, 95 % CI [-1.5, +7.2]): " \
+           "**within noise**" in rep
+    assert "order: **does not hold** in the point estimate (b vs a +3.0 [-1.5, +7.2]; b vs a -2.0" in rep
+    assert "_Noise: paired bootstrap._" in rep

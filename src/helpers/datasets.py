@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from .fileio import atomic_save_npy, atomic_write_json, read_json, stable_hash
+from .fileio import atomic_save_npy, atomic_write_json, output_errors, preallocate, read_json, stable_hash
 from .manifest import Manifest, load_manifest, verify_file
 from .paths import cache_dir
 from .render import QueryStyle, RenderConfig, config_dict
@@ -160,8 +160,12 @@ def _render_chunk(spec: ViewSetSpec, out_dir: str, chunk_idx: int) -> int:
             imgs[i - lo], masks[i - lo], rots[i - lo] = render_query(obj, R[i], spec.render, spec.style, bgs, rng)
     path = Path(out_dir) / f"chunk_{chunk_idx:05d}.npz"
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, images=imgs, masks=masks, rotations=rots)
+    try:
+        with output_errors(path), open(tmp, "wb") as f:
+            np.savez(f, images=imgs, masks=masks, rotations=rots)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     os.replace(tmp, path)
     return hi - lo
 
@@ -190,7 +194,10 @@ def _load_complete(d: Path, spec: ViewSetSpec, manifest: Manifest, mmap: bool) -
 
 def _consolidate(d: Path, spec: ViewSetSpec) -> None:
     S = spec.render.size
-    imgs = np.lib.format.open_memmap(d / ".images.npy.tmp", mode="w+", dtype=np.uint8, shape=(spec.n, S, S, 3))
+    tmp = d / ".images.npy.tmp"
+    with output_errors(tmp, spec.n * S * S * 3):
+        imgs = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(spec.n, S, S, 3))
+    preallocate(tmp, tmp.stat().st_size)  # reserve the sparse file's blocks: full disk = error, not SIGBUS
     masks = np.zeros((spec.n, S, S), bool)
     rots = np.zeros((spec.n, 3, 3), np.float32)
     for c in range(_n_chunks(spec.n)):
@@ -202,7 +209,7 @@ def _consolidate(d: Path, spec: ViewSetSpec) -> None:
             rots[lo:hi] = z["rotations"]
     imgs.flush()
     del imgs
-    os.replace(d / ".images.npy.tmp", d / "images.npy")
+    os.replace(tmp, d / "images.npy")
     atomic_save_npy(d / "masks.npy", masks)
     atomic_save_npy(d / "rotations.npy", rots)
 

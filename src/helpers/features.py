@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .fileio import atomic_write_json
+from .fileio import atomic_write_json, preallocate
 from .views import ObjectViews
 
 SIDECAR_VERSION = 1
@@ -65,7 +65,7 @@ def encode_views(model: Any, images: np.ndarray, batch: int = 64, device: str | 
         model.eval()
     try:
         for s in range(start, len(images), batch):
-            x = torch.from_numpy(np.ascontiguousarray(images[s:s + batch]))
+            x = torch.from_numpy(np.array(images[s:s + batch]))  # a writable copy of the (memmap) batch
             x = x.to(device).permute(0, 3, 1, 2).float().div_(255.0)
             with torch.inference_mode():
                 f = model.encode(x)
@@ -215,8 +215,8 @@ class FeatureCache:
                 if mm is None:
                     # Shape is known only after the first batch.
                     shape = (n, *feats.shape[1:])
-                    tmp.parent.mkdir(parents=True, exist_ok=True)
-                    mm = np.memmap(tmp, dtype=np.float16, mode="w+", shape=shape)
+                    preallocate(tmp, int(np.prod(shape)) * 2)  # full disk: an error now, not SIGBUS later
+                    mm = np.memmap(tmp, dtype=np.float16, mode="r+", shape=shape)
                 elif tuple(feats.shape[1:]) != mm.shape[1:]:
                     raise ValueError(f"get_or_build: model features {tuple(feats.shape[1:])} do not match "
                                      f"the partial cache {mm.shape[1:]} in {tmp}; delete it to rebuild")

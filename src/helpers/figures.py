@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
-import numpy as np
-
+from .fileio import atomic_write_bytes
 from .views import ObjectViews
 
 
@@ -20,13 +20,12 @@ def _plt():
 
 
 def save(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
-    """Save a figure atomically-enough (tmp then replace) and close it."""
+    """Save a figure atomically (rendered in memory, then :func:`atomic_write_bytes`) and close it."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-    os.replace(tmp, path)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
     _plt().close(fig)
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
 

@@ -7,11 +7,15 @@ file that a later run would mistake for a finished one.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import io
 import json
 import os
+import shutil
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -56,22 +60,91 @@ def _check_writable(directory: Path) -> None:
         raise PermissionError(f"output directory {directory} is not writable")
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically; returns the path."""
+_WRITE_ERRORS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "disk quota exceeded",
+                 errno.EROFS: "the file system is read-only", errno.EACCES: "permission denied",
+                 errno.EPERM: "operation not permitted"}
+
+
+def _free_bytes(path: Path) -> int | None:
+    for p in (path, *path.parents):
+        if p.exists():
+            try:
+                return shutil.disk_usage(p).free
+            except OSError:
+                return None
+    return None
+
+
+@contextmanager
+def output_errors(path: str | os.PathLike, nbytes: int | None = None) -> Iterator[None]:
+    """Turn a full, read-only or forbidden output location into an error that names ``path``.
+
+    The OSError keeps its errno; its message says which file could not be
+    written, why, and (for a full disk) how many bytes were needed and free.
+    """
+    path = Path(path)
+    try:
+        yield
+    except OSError as e:
+        if e.errno not in _WRITE_ERRORS or str(path) in str(e):
+            raise
+        msg = f"cannot write {path}: {_WRITE_ERRORS[e.errno]}"
+        if e.errno in (errno.ENOSPC, errno.EDQUOT):
+            free = _free_bytes(path.parent)
+            need = f"{nbytes} bytes needed, " if nbytes is not None else ""
+            msg += f" ({need}{free if free is not None else '?'} bytes free)"
+        msg += "; free some space or choose another output/cache directory (cache_dir, $HELPERS_CACHE_DIR)"
+        raise OSError(e.errno, msg) from e
+
+
+def preallocate(path: str | os.PathLike, nbytes: int) -> Path:
+    """Create ``path`` with ``nbytes`` reserved on disk before it is memory-mapped.
+
+    A memory map over a sparse file on a full disk dies with SIGBUS at the
+    first page that cannot be stored; reserving the blocks first turns that
+    into an ordinary, explained OSError here.
+    """
     path = Path(path)
     _check_writable(path.parent)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; results are meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with output_errors(path, nbytes):
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            if nbytes > 0:
+                if hasattr(os, "posix_fallocate"):
+                    try:
+                        os.posix_fallocate(fd, 0, nbytes)
+                    except OSError as e:
+                        if e.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
+                            raise
+                        os.ftruncate(fd, nbytes)  # file system without fallocate: sparse is all we get
+                else:
+                    os.ftruncate(fd, nbytes)
+        finally:
+            os.close(fd)
+    return path
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically; returns the path.
+
+    On any failure (full disk included) the temporary file is removed and an
+    existing ``path`` is left untouched.
+    """
+    path = Path(path)
+    _check_writable(path.parent)
+    with output_errors(path, len(data)):
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.chmod(tmp, 0o644)  # mkstemp creates 0600; results are meant to be shared
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
     return path
 
 

@@ -167,6 +167,8 @@ def images_to_tensor(images: np.ndarray) -> torch.Tensor:
     arr = np.asarray(images)
     if arr.ndim != 4 or arr.shape[-1] != 3 or arr.dtype != np.uint8:
         raise ValueError(f"images: expected (N,S,S,3) uint8, got {arr.shape} {arr.dtype}")
+    if not arr.flags.writeable:  # read-only memmap: torch would warn; .float() below copies anyway
+        arr = np.array(arr)
     return torch.from_numpy(np.ascontiguousarray(arr)).permute(0, 3, 1, 2).float().div_(255.0)
 
 

@@ -78,7 +78,7 @@ def _provenance(base: Path) -> list[str]:
            f"- git commit `{git.get('commit')}`{' (uncommitted changes)' if git.get('dirty') else ''}",
            f"- device `{dev.get('resolved')}` ({dev.get('cpu_count')} CPUs, torch threads {dev.get('torch_threads')}"
            f"{', GPU ' + dev['gpu'] if dev.get('gpu') else ''}); GL `{r.get('gl_platform')}`",
-           f"- packages: " + ", ".join(f"{k} {v}" for k, v in (r.get("packages") or {}).items() if v),
+           "- packages: " + ", ".join(f"{k} {v}" for k, v in (r.get("packages") or {}).items() if v),
            f"- seed {r.get('seed')}; each notebook's parameters are in `<notebook>/run.json`", ""]
     if timings:
         out += ["| notebook | seconds |", "|---|---|"]
@@ -162,8 +162,21 @@ def _ablation(d: Path, title: str, fig: str, claim: str) -> list[str]:
     for k, v in m.get("trend", {}).items():
         if isinstance(v, bool):
             out.append(f"- {k.replace('_', ' ')}: {_yes(v)}")
+        elif isinstance(v, dict) and "holds" in v:
+            out.append(f"- {k.replace('_', ' ')}: {_yes(v['holds'])} in the point estimate{_noise(v)}")
+    if m.get("noise"):
+        out += ["", f"_Noise: {m['noise']}._"]
     out += ["", f"![{title}]({d.name}/{fig})", ""]
     return out
+
+
+def _noise(v: dict) -> str:
+    """", +3.1 pts, 95 % CI [-2.0, 8.1]: within noise" for a claim dict (or its pairs)."""
+    if "pairs" in v:
+        parts = [f"{p['compare']} {p['diff_pts']:+.1f} [{p['ci'][0]:+.1f}, {p['ci'][1]:+.1f}]" for p in v["pairs"]]
+        return f" ({'; '.join(parts)} pts, 95 % CI): **{v['verdict']}**"
+    return (f" ({v['compare']}: {v['diff_pts']:+.1f} pts, 95 % CI [{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}]): "
+            f"**{v['verdict']}**")
 
 
 def _fast(d: Path) -> list[str]:

@@ -9,10 +9,14 @@ share one set of rotations):
   scoring only fps_k farthest-point samples of each.
 
 A *scorer* is any callable ``(query (1,C,L) float32 tensor, refs (M,C,L)
-float32 tensor) -> (M,) tensor`` of similarities (higher = more similar);
-:func:`model_scorer` wraps a model's ``score`` method. Scores are computed on
-float32 copies of float16 reference chunks, one chunk at a time, so the bank
-may be memory-mapped and much larger than RAM.
+tensor) -> (M,) or (1, M) tensor`` of similarities (higher = more similar).
+References reach it in the bank's dtype (float16 for a feature cache: the
+model promotes them block by block, which is cheaper than a separate float32
+copy), one chunk at a time, so the bank may be memory-mapped and much larger
+than RAM. A scorer with the attribute ``batched = True`` (as
+:func:`model_scorer` makes) also takes Q queries at once and returns (Q, M);
+:func:`search_all` then scores the anchors of a batch of queries in one call,
+which amortises reading the anchors and lets the model use its many-query path.
 """
 
 from __future__ import annotations
@@ -20,6 +24,9 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
+
+import time
+import warnings
 
 import numpy as np
 import torch
@@ -45,6 +52,8 @@ class Prediction:
         n_comparisons: query-reference scores computed (each pair counted once).
         R_est: (3, 3) float64 rotation of the retrieved reference (``R_m2c``).
         obj_name: name of the predicted object.
+        seconds: wall seconds spent on this query (its share of a batched
+            anchor stage included); NaN when not measured.
     """
 
     obj_index: int
@@ -53,6 +62,7 @@ class Prediction:
     n_comparisons: int
     R_est: np.ndarray
     obj_name: str = ""
+    seconds: float = float("nan")
 
 
 class ReferenceBank:
@@ -88,6 +98,7 @@ class ReferenceBank:
         self.names = [str(n) for n in names]
         self._flat = rotations.reshape(R, 9)
         self._anchors: dict[int, np.ndarray] = {}
+        self._anchor_feats: dict[int, list[torch.Tensor]] = {}
         self.anchors(k_ac)
 
     @property
@@ -107,6 +118,19 @@ class ReferenceBank:
             self._anchors[k] = farthest_point_sampling(self.rotations, k)
         return self._anchors[k]
 
+    def anchor_feats(self, k_ac: int) -> list[torch.Tensor]:
+        """Per object, the features (A, C, L) of the ``k_ac`` anchors, gathered once and kept in RAM.
+
+        Every query scores all anchors, so they are read from the (memory-
+        mapped) bank once instead of once per query: K * A * C * L elements
+        in the bank's dtype (13 x 1024 x 128 x 345 float16 = 1.2 GB at 64 px).
+        """
+        k = min(int(k_ac), self.n_refs)
+        if k not in self._anchor_feats:
+            idx = self.anchors(k)
+            self._anchor_feats[k] = [self.ref_feats(o, idx) for o in range(self.n_objects)]
+        return self._anchor_feats[k]
+
     def nearest_refs(self, ref_index: int, k: int) -> np.ndarray:
         """The ``k`` references closest in rotation to ``ref_index`` (itself first), nearest first.
 
@@ -122,27 +146,45 @@ class ReferenceBank:
         return idx.astype(np.int64)
 
     def ref_feats(self, obj: int, idx: np.ndarray) -> torch.Tensor:
-        """Features (M, C, L) float32 of references ``idx`` of object ``obj`` (in ``idx`` order)."""
+        """Features (M, C, L) of references ``idx`` of object ``obj`` (in ``idx`` order).
+
+        float16 banks stay float16 (half the bytes to copy; the scorer
+        promotes); anything else becomes float32.
+        """
         idx = np.asarray(idx, dtype=np.int64)
+        src = self.feats[obj]
+        dtype = np.float16 if src.dtype == np.float16 else np.float32
         order = np.argsort(idx)  # sorted reads are sequential on a memmap
-        out = np.empty((len(idx), *self.feats[obj].shape[1:]), dtype=np.float32)
-        out[order] = self.feats[obj][idx[order]]
+        out = np.empty((len(idx), *src.shape[1:]), dtype=dtype)
+        out[order] = src[idx[order]]
         return torch.from_numpy(out)
+
+    def chunk(self, obj: int, start: int, stop: int) -> torch.Tensor:
+        """Features (stop - start, C, L) of a contiguous run of references (dtype as in :meth:`ref_feats`)."""
+        src = self.feats[obj]
+        dtype = np.float16 if src.dtype == np.float16 else np.float32
+        part = np.ascontiguousarray(src[start:stop], dtype=dtype)
+        with warnings.catch_warnings():
+            # A read-only memmap slice is wrapped without a copy; scorers only read it.
+            warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
+            return torch.from_numpy(part)
 
 
 def model_scorer(model: Any, device: str | torch.device = "cpu", chunk: int = 1024) -> Scorer:
     """Scorer from an object with ``score(q (Q,C,L), r (R,C,L), chunk) -> (Q,R)``.
 
     Puts the model in eval mode (if it has ``eval``) since scores must be
-    deterministic; runs under ``torch.inference_mode``; returns CPU scores.
+    deterministic; runs under ``torch.inference_mode``; returns (Q, M) CPU
+    scores. Marked ``batched`` (takes several queries at once).
     """
     if hasattr(model, "eval"):
         model.eval()
 
     def scorer(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
         with torch.inference_mode():
-            return model.score(q.to(device), r.to(device), chunk=chunk)[0].float().cpu()
+            return model.score(q.to(device), r.to(device), chunk=chunk).float().cpu()
 
+    scorer.batched = True  # type: ignore[attr-defined]
     return scorer
 
 
@@ -180,9 +222,9 @@ def greedy_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, group: i
     q = _as_query(query_feat)
     _check_query(q, bank)
     best = (-np.inf, 0, 0)
-    for o, f in enumerate(bank.feats):
+    for o in range(bank.n_objects):
         for s in range(0, bank.n_refs, group):
-            refs = torch.from_numpy(np.asarray(f[s:s + group], dtype=np.float32))
+            refs = bank.chunk(o, s, s + group)
             sc = _run_scorer(scorer, q, refs)
             j = int(np.argmax(sc))
             if sc[j] > best[0]:
@@ -202,10 +244,20 @@ class _ScoreCache:
         self.scores: list[np.ndarray | None] = [None] * bank.n_objects
         self.n_comparisons = 0
 
-    def __call__(self, obj: int, idx: np.ndarray) -> np.ndarray:
+    def _row(self, obj: int) -> np.ndarray:
         if self.scores[obj] is None:
             self.scores[obj] = np.full(self.bank.n_refs, np.nan)
-        d = self.scores[obj]
+        return self.scores[obj]
+
+    def put(self, obj: int, idx: np.ndarray, values: np.ndarray) -> None:
+        """Record scores computed elsewhere (a batched anchor stage); counted as comparisons."""
+        d = self._row(obj)
+        new = np.isnan(d[idx])
+        d[idx] = values
+        self.n_comparisons += int(new.sum())
+
+    def __call__(self, obj: int, idx: np.ndarray) -> np.ndarray:
+        d = self._row(obj)
         new = np.unique(idx[np.isnan(d[idx])])
         for s in range(0, len(new), self.group):
             part = new[s:s + self.group]
@@ -229,7 +281,7 @@ def authors_sizes(n_refs: int) -> list[int]:
 
 def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int = 1024, fps_k: int = 256,
                 schedule: str = "converge", top_anchors: int = 3, group: int = 1024,
-                max_moves_per_level: int = 20) -> Prediction:
+                max_moves_per_level: int = 20, anchor_scores: np.ndarray | None = None) -> Prediction:
     """Algorithm 1 of the method: anchors pick the category, then local refinement.
 
     1. Score the ``k_ac`` FPS anchors of every object; the category is the
@@ -248,7 +300,9 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
          scored (again until the best stops moving) and the search stops.
 
     Scores are cached per query, so a reference is never scored twice and
-    ``n_comparisons`` counts distinct pairs.
+    ``n_comparisons`` counts distinct pairs. ``anchor_scores`` (K, A), if
+    given, are this query's scores of ``bank.anchors(k_ac)`` computed
+    elsewhere (see :func:`anchor_scores_batch`); they count as comparisons.
     """
     if schedule not in ("converge", "authors"):
         raise ValueError(f"fast_search: schedule must be 'converge' or 'authors', got {schedule!r}")
@@ -259,7 +313,16 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
     score = _ScoreCache(q, bank, scorer, group)
 
     anchors = bank.anchors(k_ac)
-    anchor_scores = np.stack([score(o, anchors) for o in range(bank.n_objects)])  # (K, A)
+    if anchor_scores is None:
+        feats = bank.anchor_feats(k_ac)
+        anchor_scores = np.stack([_run_scorer(scorer, q, feats[o]) for o in range(bank.n_objects)])  # (K, A)
+    else:
+        anchor_scores = np.asarray(anchor_scores, dtype=np.float64)
+        if anchor_scores.shape != (bank.n_objects, len(anchors)):
+            raise ValueError(f"fast_search: anchor_scores must be (K, A)=({bank.n_objects}, {len(anchors)}), "
+                             f"got {anchor_scores.shape}")
+    for o in range(bank.n_objects):
+        score.put(o, anchors, anchor_scores[o])
     top = min(top_anchors, len(anchors))
     cat_score = -np.sort(-anchor_scores, axis=1)[:, :top].mean(axis=1)
     obj = int(np.argmax(cat_score))
@@ -296,17 +359,72 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
     return Prediction(obj, best, best_score, score.n_comparisons, bank.rotations[best].copy(), bank.names[obj])
 
 
+def anchor_scores_batch(query_feats: torch.Tensor, bank: ReferenceBank, scorer: Scorer,
+                        k_ac: int = 1024) -> np.ndarray:
+    """(Q, K, A) scores of Q queries (Q, C, L) against every object's anchors.
+
+    One scorer call per object with all Q queries, if the scorer is
+    ``batched``; otherwise one call per query.
+    """
+    q = torch.as_tensor(query_feats).float()
+    if q.ndim != 3:
+        raise ValueError(f"anchor_scores_batch: query_feats must be (Q,C,L), got {tuple(q.shape)}")
+    _check_query(q[:1], bank)
+    feats = bank.anchor_feats(k_ac)
+    out = np.empty((len(q), bank.n_objects, len(feats[0])), dtype=np.float64)
+    for o, f in enumerate(feats):
+        if getattr(scorer, "batched", False):
+            s = scorer(q, f)
+            s = (s.detach().cpu().numpy() if torch.is_tensor(s) else np.asarray(s)).astype(np.float64)
+            if s.shape != (len(q), len(f)):
+                raise ValueError(f"batched scorer returned shape {s.shape}, expected {(len(q), len(f))}")
+            out[:, o] = s
+        else:
+            for i in range(len(q)):
+                out[i, o] = _run_scorer(scorer, q[i:i + 1], f)
+    return out
+
+
 def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, method: str = "greedy",
-               progress: bool = True, **kwargs: Any) -> list[Prediction]:
+               progress: bool = True, query_batch: int = 16, **kwargs: Any) -> list[Prediction]:
     """Run :func:`greedy_search` or :func:`fast_search` for each of N queries (N, C, L).
 
-    ``kwargs`` go to the search function (e.g. ``group``, ``k_ac``, ``schedule``).
+    For "fast", the anchor stage of ``query_batch`` queries at a time is one
+    batched scoring pass (:func:`anchor_scores_batch`); each prediction's
+    ``seconds`` is its refinement plus an equal share of its batch's anchor
+    stage, so their mean is the throughput cost per query. ``query_batch=1``
+    gives single-query latency. ``kwargs`` go to the search function (e.g.
+    ``group``, ``k_ac``, ``schedule``).
     """
     fns = {"greedy": greedy_search, "fast": fast_search}
     if method not in fns:
         raise ValueError(f"search_all: method must be one of {sorted(fns)}, got {method!r}")
     if getattr(query_feats, "ndim", None) != 3:
         raise ValueError(f"search_all: query_feats must be (N,C,L), got shape {getattr(query_feats, 'shape', None)}")
+    if isinstance(query_batch, bool) or not isinstance(query_batch, int) or query_batch < 1:
+        raise ValueError(f"search_all: query_batch must be a positive int, got {query_batch!r}")
     fn = fns[method]
-    return [fn(query_feats[i], bank, scorer, **kwargs)
-            for i in tqdm(range(len(query_feats)), desc=f"{method} search", unit="query", disable=not progress)]
+    n = len(query_feats)
+    preds: list[Prediction] = []
+    bar = tqdm(total=n, desc=f"{method} search", unit="query", disable=not progress)
+    for s in range(0, n, query_batch if method == "fast" else 1):
+        batch = query_feats[s:s + (query_batch if method == "fast" else 1)]
+        share, pre = 0.0, [None] * len(batch)
+        if method == "fast" and len(batch) > 1:
+            t0 = time.perf_counter()
+            pre = list(anchor_scores_batch(_as_queries(batch), bank, scorer, kwargs.get("k_ac", 1024)))
+            share = (time.perf_counter() - t0) / len(batch)
+        for i in range(len(batch)):
+            t0 = time.perf_counter()
+            p = fn(batch[i], bank, scorer, **kwargs) if pre[i] is None else \
+                fn(batch[i], bank, scorer, anchor_scores=pre[i], **kwargs)
+            p.seconds = share + time.perf_counter() - t0
+            preds.append(p)
+            bar.update(1)
+    bar.close()
+    return preds
+
+
+def _as_queries(query_feats: Any) -> torch.Tensor:
+    q = query_feats if torch.is_tensor(query_feats) else torch.from_numpy(np.asarray(query_feats))
+    return q.float()

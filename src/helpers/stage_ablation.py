@@ -7,9 +7,7 @@ that split with greedy search among the 13 benchmark objects.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -18,6 +16,7 @@ import torch
 from . import paper
 from .fileio import atomic_write_json
 from .figures import _plt, save
+from .metrics import paired_difference
 from .stage_train import data_config, train_config
 from .study import StudyData, encode_queries, evaluate, prepare_data, reference_bank, train_or_load
 from .tables import write_table
@@ -34,7 +33,8 @@ def _unseen_result(P: dict, data: StudyData, cfg, split: int) -> dict:
 def _row(label: str, r: dict, **extra) -> dict:
     m = r["res"]["means"]
     return {"variant": label, "unseen rot_acc": m["rot_acc"], "unseen class_acc": m["class_acc"],
-            "unseen median_err_deg": m["median_err_deg"], "run": Path(r["run"]).name, **extra}
+            "unseen median_err_deg": m["median_err_deg"], "n_queries": m["n_queries"],
+            "run": Path(r["run"]).name, **extra}
 
 
 def bars(df: pd.DataFrame, label_col: str, value_col: str, path: Path, title: str,
@@ -61,6 +61,63 @@ def trend_holds(values: dict[str, float], order: list[str]) -> bool:
     return all(a <= b for a, b in zip(v, v[1:]))
 
 
+def claim(per_query: dict[str, pd.DataFrame], worse: str, better: str) -> dict | None:
+    """Paper claim "``better`` beats ``worse``" on our queries: point estimate and paired 95 % interval.
+
+    ``holds`` is the point estimate (better > worse); ``verdict`` says whether
+    the paired bootstrap interval of the difference excludes 0. None when a
+    variant was not run.
+    """
+    if worse not in per_query or better not in per_query:
+        return None
+    c = paired_difference(per_query[worse], per_query[better])
+    return {"holds": bool(c["diff_pts"] > 0), "compare": f"{better} vs {worse}", **c,
+            "verdict": {"b > a": "significant", "b < a": "significantly reversed"}.get(c["verdict"], "within noise")}
+
+
+def chain(per_query: dict[str, pd.DataFrame], order: list[str]) -> dict | None:
+    """Claim that accuracy rises along ``order``: every consecutive pair as in :func:`claim`."""
+    present = [k for k in order if k in per_query]
+    if len(present) < 2:
+        return None
+    pairs = [claim(per_query, a, b) for a, b in zip(present, present[1:])]
+    verdicts = {p["verdict"] for p in pairs}
+    return {"holds": all(p["holds"] for p in pairs), "pairs": pairs,
+            "verdict": "significant" if verdicts == {"significant"} else
+            "partly reversed beyond noise" if "significantly reversed" in verdicts else "within noise"}
+
+
+def variant_study(P: dict, out_dir: Path, data: StudyData, variants: list[tuple[str, dict, dict]], stem: str,
+                  title: str, paper_col: str | None = None) -> tuple[pd.DataFrame, dict[str, pd.DataFrame]]:
+    """Train (or load) one model per variant on split ``P["split"]`` and evaluate its unseen objects.
+
+    Args:
+        variants: (label, :func:`train_config` overrides, extra table columns).
+        stem: file stem of the table and figure in ``out_dir``.
+
+    Returns:
+        (table with one row per variant, label -> per-query results for :func:`claim`).
+    """
+    rows, per_query = [], {}
+    for label, overrides, extra in variants:
+        r = _unseen_result(P, data, train_config(P, **overrides), P["split"])
+        rows.append(_row(label, r, **extra))
+        per_query[label] = r["res"]["per_query"]
+    df = pd.DataFrame(rows)
+    write_table(df, out_dir / stem)
+    bars(df, "variant", "unseen rot_acc", out_dir / f"{stem}.png", f"{title}, split #{P['split']} unseen",
+         paper_col=paper_col)
+    return df, per_query
+
+
+def _finish(out_dir: Path, df: pd.DataFrame, trend: dict) -> dict:
+    out = {"table": df.to_dict(orient="records"), "trend": {k: v for k, v in trend.items() if v is not None},
+           "noise": "claims compare object-averaged Rota. Acc. of two variants on the same queries; ci is a "
+                    "paired bootstrap 95 % interval (queries resampled within objects)"}
+    atomic_write_json(out_dir / "metrics.json", out)
+    return out
+
+
 # ------------------------------------------------------------------ 04 scales
 
 SCALE_VARIANTS = ["global", "13", "16", "32", "16,13", "32,16,13"]
@@ -69,21 +126,13 @@ SCALE_VARIANTS = ["global", "13", "16", "32", "16,13", "32,16,13"]
 def run_scales(P: dict, out_dir: Path, data: StudyData | None = None) -> dict:
     """Paper Fig. 5a: global descriptor vs single scales vs combinations."""
     data = data or prepare_data(data_config(P))
-    rows = []
-    for v in P["variants"]:
-        r = _unseen_result(P, data, train_config(P, scales=v), P["split"])
-        rows.append(_row(v, r))
-    df = pd.DataFrame(rows)
-    write_table(df, out_dir / "scales")
-    bars(df, "variant", "unseen rot_acc", out_dir / "scales.png", f"Scales, split #{P['split']} unseen (cf. paper Fig. 5a)")
-    vals = dict(zip(df["variant"], df["unseen rot_acc"]))
-    singles = [vals[k] for k in ("13", "16", "32") if k in vals]
-    claim = {"multi_scale_beats_global": vals.get("32,16,13", np.nan) > vals.get("global", np.nan),
-             "multi_scale_beats_every_single": bool(singles) and vals.get("32,16,13", -1) >= max(singles),
+    df, pq = variant_study(P, out_dir, data, [(v, {"scales": v}, {}) for v in P["variants"]], "scales",
+                           "Scales (cf. paper Fig. 5a)")
+    singles = [k for k in ("13", "16", "32") if k in pq]
+    trend = {"multi_scale_beats_global": claim(pq, "global", "32,16,13"),
+             **{f"multi_scale_beats_{k}": claim(pq, k, "32,16,13") for k in singles},
              "paper_claim": paper.SCALES_CLAIM}
-    out = {"table": df.to_dict(orient="records"), "trend": claim}
-    atomic_write_json(out_dir / "metrics.json", out)
-    return out
+    return _finish(out_dir, df, trend)
 
 
 # ------------------------------------------------------------------ 05 fusion
@@ -91,20 +140,14 @@ def run_scales(P: dict, out_dir: Path, data: StudyData | None = None) -> dict:
 def run_fusion(P: dict, out_dir: Path, data: StudyData | None = None) -> dict:
     """Paper Fig. 6a: Avg / Sigmoid / Softmax / adaptive (sigmoid x softmax)."""
     data = data or prepare_data(data_config(P))
-    rows = []
-    for v in P["variants"]:
-        r = _unseen_result(P, data, train_config(P, fusion=v), P["split"])
-        rows.append(_row(v, r, **{"paper split#1 rot_acc": paper.FUSION_SPLIT1.get(v)}))
-    df = pd.DataFrame(rows)
-    write_table(df, out_dir / "fusion")
-    bars(df, "variant", "unseen rot_acc", out_dir / "fusion.png", f"Fusion, split #{P['split']} unseen (cf. paper Fig. 6a)",
-         paper_col="paper split#1 rot_acc")
-    vals = dict(zip(df["variant"], df["unseen rot_acc"]))
-    claim = {"paper_order_avg<sigmoid<softmax<adaptive": trend_holds(vals, ["avg", "sigmoid", "softmax", "adaptive"]),
-             "adaptive_is_best": vals.get("adaptive", -1) >= max(vals.values())}
-    out = {"table": df.to_dict(orient="records"), "trend": claim}
-    atomic_write_json(out_dir / "metrics.json", out)
-    return out
+    df, pq = variant_study(P, out_dir, data,
+                           [(v, {"fusion": v}, {"paper split#1 rot_acc": paper.FUSION_SPLIT1.get(v)})
+                            for v in P["variants"]],
+                           "fusion", "Fusion (cf. paper Fig. 6a)", paper_col="paper split#1 rot_acc")
+    order = ["avg", "sigmoid", "softmax", "adaptive"]
+    trend = {"paper_order_avg<sigmoid<softmax<adaptive": chain(pq, order),
+             **{f"adaptive_beats_{k}": claim(pq, k, "adaptive") for k in order[:-1]}}
+    return _finish(out_dir, df, trend)
 
 
 # ------------------------------------------------------------------ 08 components
@@ -112,23 +155,19 @@ def run_fusion(P: dict, out_dir: Path, data: StudyData | None = None) -> dict:
 def run_components(P: dict, out_dir: Path, data: StudyData | None = None) -> dict:
     """Paper Table 5: local normalisation and weighted infoNCE on/off."""
     data = data or prepare_data(data_config(P))
-    rows = []
-    for ln in (False, True):
-        for wl in (False, True):
-            r = _unseen_result(P, data, train_config(P, local_norm=ln, weighted_loss=wl), P["split"])
-            rows.append(_row(f"LN={'on' if ln else 'off'}, wInfoNCE={'on' if wl else 'off'}", r, local_norm=ln,
-                             weighted_loss=wl, **{"paper split#1 rot_acc": paper.COMPONENTS_SPLIT1[(ln, wl)]}))
-    df = pd.DataFrame(rows)
-    write_table(df, out_dir / "components")
-    bars(df, "variant", "unseen rot_acc", out_dir / "components.png",
-         f"Components, split #{P['split']} unseen (cf. paper Table 5)", paper_col="paper split#1 rot_acc")
-    v = {(r["local_norm"], r["weighted_loss"]): r["unseen rot_acc"] for r in rows}
-    claim = {"both_beats_neither": v[(True, True)] > v[(False, False)],
-             "local_norm_helps": v[(True, False)] > v[(False, False)],
-             "weighted_loss_helps": v[(False, True)] > v[(False, False)]}
-    out = {"table": df.to_dict(orient="records"), "trend": claim}
-    atomic_write_json(out_dir / "metrics.json", out)
-    return out
+
+    def label(ln: bool, wl: bool) -> str:
+        return f"LN={'on' if ln else 'off'}, wInfoNCE={'on' if wl else 'off'}"
+
+    variants = [(label(ln, wl), {"local_norm": ln, "weighted_loss": wl},
+                 {"local_norm": ln, "weighted_loss": wl, "paper split#1 rot_acc": paper.COMPONENTS_SPLIT1[(ln, wl)]})
+                for ln in (False, True) for wl in (False, True)]
+    df, pq = variant_study(P, out_dir, data, variants, "components", "Components (cf. paper Table 5)",
+                           paper_col="paper split#1 rot_acc")
+    trend = {"both_beats_neither": claim(pq, label(False, False), label(True, True)),
+             "local_norm_helps": claim(pq, label(False, False), label(True, False)),
+             "weighted_loss_helps": claim(pq, label(False, False), label(False, True))}
+    return _finish(out_dir, df, trend)
 
 
 # ------------------------------------------------------------------ 06 reference count
@@ -186,7 +225,7 @@ def run_fast_vs_greedy(P: dict, out_dir: Path, data: StudyData | None = None) ->
     """
     from .device import resolve_device
     from .metrics import Record, per_query_table, summarise_queries
-    from .retrieval import fast_search, greedy_search, model_scorer
+    from .retrieval import model_scorer, search_all
 
     data = data or prepare_data(data_config(P))
     model, run, _ = train_or_load(P["split"], train_config(P), data)
@@ -201,27 +240,29 @@ def run_fast_vs_greedy(P: dict, out_dir: Path, data: StudyData | None = None) ->
         feats.append(q)
         meta += [(n, i) for i in range(len(q))]
     Q = torch.cat(feats)
-    methods = {"greedy": lambda q: greedy_search(q, bank, scorer, group=P["group"]),
-               "fast (converge)": lambda q: fast_search(q, bank, scorer, k_ac=P["k_ac"], fps_k=P["fps_k"], schedule="converge"),
-               "fast (authors)": lambda q: fast_search(q, bank, scorer, k_ac=P["k_ac"], fps_k=P["fps_k"], schedule="authors")}
+    fast_kw = {"k_ac": P["k_ac"], "fps_k": P["fps_k"]}
+    methods = {"greedy": dict(method="greedy", group=P["group"]),
+               "fast (converge)": dict(method="fast", schedule="converge", query_batch=1, **fast_kw),
+               "fast (authors)": dict(method="fast", schedule="authors", query_batch=1, **fast_kw),
+               f"fast (converge, {P['query_batch']}-query batches)": dict(
+                   method="fast", schedule="converge", query_batch=P["query_batch"], **fast_kw)}
+    bank.anchor_feats(P["k_ac"])  # gathered once per bank, before any timing
     rows, preds = [], {}
-    for name, fn in methods.items():
-        fn(Q[0:1])  # warm-up
-        secs, recs, comps = [], [], []
-        for i in range(len(Q)):
-            t0 = time.perf_counter()
-            p = fn(Q[i:i + 1])
-            secs.append(time.perf_counter() - t0)
-            comps.append(p.n_comparisons)
-            n, j = meta[i]
+    for name, kw in methods.items():
+        search_all(Q[:2], bank, scorer, progress=False, **kw)  # warm-up
+        ps = search_all(Q, bank, scorer, progress=False, **kw)
+        recs = []
+        for p, (n, j) in zip(ps, meta):
             recs.append(Record(n, p.obj_name, data.test_q[n].rotations[j].astype(np.float64), p.R_est,
                                data.test_q[n].symmetries, f"{n}:{j}"))
         preds[name] = recs
         _, means = summarise_queries(per_query_table(recs))
+        ref = paper.FAST_VS_GREEDY["greedy" if name == "greedy" else "fast"]
         rows.append({"method": name, "unseen rot_acc": means["rot_acc"], "unseen class_acc": means["class_acc"],
-                     "median s/query": float(np.median(secs)), "mean comparisons/query": float(np.mean(comps)),
-                     "paper rot_acc": paper.FAST_VS_GREEDY["greedy" if name == "greedy" else "fast"]["rot_acc"],
-                     "paper s/query (V100, 13x10k)": paper.FAST_VS_GREEDY["greedy" if name == "greedy" else "fast"]["seconds_per_query"]})
+                     "median s/query": float(np.median([p.seconds for p in ps])),
+                     "mean s/query": float(np.mean([p.seconds for p in ps])),
+                     "mean comparisons/query": float(np.mean([p.n_comparisons for p in ps])),
+                     "paper rot_acc": ref["rot_acc"], "paper s/query (V100, 13x10k)": ref["seconds_per_query"]})
     df = pd.DataFrame(rows)
     g = df.iloc[0]
     df["speedup vs greedy"] = g["median s/query"] / df["median s/query"]

@@ -197,6 +197,9 @@ def evaluate(model: Any, bank: ReferenceBank, queries: dict[str, ObjectViews], m
              **search_kw: Any) -> dict[str, Any]:
     """Retrieve every query of ``queries`` in ``bank`` and score the predictions.
 
+    ``search_kw`` go to :func:`helpers.retrieval.search_all` (e.g. ``k_ac``,
+    ``fps_k``, ``query_batch``). Seconds per query exclude query encoding.
+
     Returns:
         {"per_object": DataFrame, "means": dict, "per_query": DataFrame,
          "seconds_per_query": [...], "comparisons": [...]}.
@@ -206,10 +209,9 @@ def evaluate(model: Any, bank: ReferenceBank, queries: dict[str, ObjectViews], m
     records, secs, comps = [], [], []
     for name, views in queries.items():
         q = encode_queries(model, views, device)
-        for i in range(len(q)):
-            t0 = time.perf_counter()
-            pred = search_all(q[i:i + 1], bank, scorer, method=method, progress=False, **search_kw)[0]
-            secs.append(time.perf_counter() - t0)
+        preds = search_all(q, bank, scorer, method=method, progress=False, **search_kw) if len(q) else []
+        for i, pred in enumerate(preds):
+            secs.append(pred.seconds)
             comps.append(pred.n_comparisons)
             records.append(Record(name, pred.obj_name, np.asarray(views.rotations[i], dtype=np.float64), pred.R_est,
                                   views.symmetries, f"{name}:{i}"))

@@ -17,9 +17,9 @@ Files in ``out_dir``: ``last.pt`` (everything needed to resume), ``best.pt``
 
 from __future__ import annotations
 
+import io
 import json
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -30,6 +30,7 @@ from tqdm.auto import tqdm
 
 from .augment import AugmentConfig, augment_batch
 from .device import resolve_device
+from .fileio import atomic_write_bytes, atomic_write_text
 from .losses import pair_weights, weighted_info_nce
 from .model import ModelConfig, OrientationNet, images_to_tensor
 from .rotations import nearest, symmetric_geodesic_deg
@@ -168,15 +169,10 @@ class TrainResult:
 # --------------------------------------------------------------------------- helpers
 
 def _atomic_torch_save(obj, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
-def _atomic_write_text(text: str, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    """torch.save through a temporary file; a failed write (full disk) leaves ``path`` as it was."""
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def _check_views(views: dict[str, ObjectViews], what: str, size: int) -> None:
@@ -461,8 +457,8 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
                                 "numpy_rng": rng.bit_generator.state, "config": cfg.to_dict(),
                                 "model_config": cfg.model.to_dict(), "history": history,
                                 "best_metric": best_metric, "best_epoch": best_epoch}, last_path)
-            _atomic_write_text(json.dumps({"best_epoch": best_epoch, "history": history}, indent=1),
-                               out_dir / "history.json")
+            atomic_write_text(out_dir / "history.json",
+                              json.dumps({"best_epoch": best_epoch, "history": history}, indent=1))
         if history:
             plot_history(history, out_dir / "history.png")
         return TrainResult(best_path, last_path, history, float(np.mean(speeds)) if speeds else float("nan"))
@@ -502,5 +498,7 @@ def plot_history(history: list[dict], path: str | Path) -> Path:
         ax.grid(alpha=0.3)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=100)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=100, format="png")
+    atomic_write_bytes(path, buf.getvalue())
     return path
