@@ -13,7 +13,7 @@ from helpers.augment import AugmentConfig, augment_batch, augment_image
 from helpers.losses import pair_weights, weighted_info_nce
 from helpers.model import ModelConfig, OrientationNet, images_to_tensor
 from helpers.rotations import geodesic_deg, haar_uniform, inplane_rotate_label
-from helpers.train import TrainConfig, load_model, plot_history, train, train_step, validate
+from helpers.train import TrainConfig, load_model, plot_history, selection_metric, train, train_step, validate
 from helpers.views import ObjectViews
 
 SIZE = 64
@@ -172,8 +172,17 @@ def test_outputs_best_checkpoint_and_load(tmp_path):
     model, ck = load_model(res.best_path, device="cpu")
     assert not model.training and model.cfg == cfg.model
     assert ck["epoch"] == hist["best_epoch"]
-    best_val = max(h["val"]["rot_acc"] for h in res.history)
-    assert ck["val"]["rot_acc"] == best_val
+    # Selected on the mean of class and rotation accuracy (default), later epoch on ties.
+    scores = [(h["val"]["class_acc"] + h["val"]["rot_acc"]) / 2 for h in res.history]
+    assert hist["best_epoch"] == max(i + 1 for i, v in enumerate(scores) if v == max(scores))
+    with pytest.raises(ValueError, match="select_on"):
+        tiny_cfg(select_on="loss")
+
+
+def test_selection_metric():
+    v = {"class_acc": 0.5, "rot_acc": 0.1}
+    assert selection_metric(v, "mean_acc") == pytest.approx(0.3)
+    assert selection_metric(v, "rot_acc") == pytest.approx(0.1)
 
 
 def test_validate_perfect_when_queries_are_references():

@@ -111,7 +111,8 @@ def _train(d: Path) -> list[str]:
             f"- parameters: encoder/decoder {m['parameters']['encoder_decoder']:,}, fusion head "
             f"{m['parameters']['fusion_head']:,} (paper: about 1.9 M and 50 K)",
             f"- training speed {_fmt(m['train_images_per_s'])} images/s; selected epoch {bv.get('epoch')} on held-out "
-            f"views of seen objects (val Rota. Acc. {_fmt(bv.get('rot_acc'))} %)",
+            f"views of seen objects by `{m.get('selection', 'rot_acc')}` (val Class. Acc. {_fmt(bv.get('class_acc'))} %, "
+            f"Rota. Acc. {_fmt(bv.get('rot_acc'))} %)",
             f"- unseen objects of the split: Class. Acc. {_fmt(u['class_acc'])} % (chance {_fmt(ch['class_acc'])} %), "
             f"Rota. Acc. {_fmt(u['rot_acc'])} % (chance {_fmt(ch['rot_acc'], 2)} %) — better than chance: "
             f"{_yes(u['rot_acc'] > ch['rot_acc'] and u['class_acc'] > ch['class_acc'])}", "",

@@ -88,7 +88,7 @@ def run_train_stage(P: dict[str, Any], out_dir: Path, data: StudyData | None = N
         "split": P["split"], "run_dir": str(run), "checkpoint": str(run / "best.pt"),
         "parameters": count_parameters(model), "train_images_per_s": info.get("train_images_per_s"),
         "train_seconds": info.get("seconds_this_session"),
-        "best_val": _best_val(hist), "unseen_test": summary_row(f"split {P['split']} unseen", res),
+        "best_val": _best_val(hist), "selection": cfg.select_on, "unseen_test": summary_row(f"split {P['split']} unseen", res),
         "chance": chance_levels(len(bench)), "bank": {"objects": bench, "refs_per_object": bank.n_refs},
     }
     atomic_write_json(out_dir / "train_metrics.json", metrics)
