@@ -377,6 +377,9 @@ class OrientationNet(nn.Module):
             self.scale_slices[lv] = slice(start, start + h * w)
             start += h * w
         self.feature_length = start
+        # NHWC convolutions are ~1.2x faster on CPU here (oneDNN), forward and backward;
+        # load_state_dict copies into these parameters and keeps their layout.
+        self.to(memory_format=torch.channels_last)
 
     # ------------------------------------------------------------------ encoding
 
