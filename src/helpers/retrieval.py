@@ -386,14 +386,16 @@ def anchor_scores_batch(query_feats: torch.Tensor, bank: ReferenceBank, scorer: 
 
 
 def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, method: str = "greedy",
-               progress: bool = True, query_batch: int = 16, **kwargs: Any) -> list[Prediction]:
+               progress: bool = True, query_batch: int = 1, **kwargs: Any) -> list[Prediction]:
     """Run :func:`greedy_search` or :func:`fast_search` for each of N queries (N, C, L).
 
     For "fast", the anchor stage of ``query_batch`` queries at a time is one
     batched scoring pass (:func:`anchor_scores_batch`); each prediction's
     ``seconds`` is its refinement plus an equal share of its batch's anchor
     stage, so their mean is the throughput cost per query. ``query_batch=1``
-    gives single-query latency. ``kwargs`` go to the search function (e.g.
+    (default) gives single-query latency; on 2 CPU cores batching did not pay
+    (benchmarks/README.md), on a GPU it is the way to fill the device.
+    ``kwargs`` go to the search function (e.g.
     ``group``, ``k_ac``, ``schedule``).
     """
     fns = {"greedy": greedy_search, "fast": fast_search}

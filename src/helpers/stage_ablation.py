@@ -17,13 +17,13 @@ from . import paper
 from .fileio import atomic_write_json
 from .figures import _plt, save
 from .metrics import paired_difference
-from .stage_train import data_config, train_config
-from .study import StudyData, encode_queries, evaluate, prepare_data, reference_bank, train_or_load
+from .stage_train import data_config, train_model
+from .study import StudyData, encode_queries, evaluate, prepare_data, reference_bank
 from .tables import write_table
 
 
-def _unseen_result(P: dict, data: StudyData, cfg, split: int) -> dict:
-    model, run, info = train_or_load(split, cfg, data)
+def _unseen_result(P: dict, data: StudyData, split: int, **overrides) -> dict:
+    model, run, info = train_model(P, data, split, **overrides)
     bench = data.manifest.object_names("train")
     bank = reference_bank(model, data, bench, device=P["device"], n_refs=P["eval_refs"] or None)
     res = evaluate(model, bank, {n: data.test_q[n] for n in data.manifest.split_objects(split)}, "greedy", P["device"])
@@ -100,7 +100,7 @@ def variant_study(P: dict, out_dir: Path, data: StudyData, variants: list[tuple[
     """
     rows, per_query = [], {}
     for label, overrides, extra in variants:
-        r = _unseen_result(P, data, train_config(P, **overrides), P["split"])
+        r = _unseen_result(P, data, P["split"], **overrides)
         rows.append(_row(label, r, **extra))
         per_query[label] = r["res"]["per_query"]
     df = pd.DataFrame(rows)
@@ -179,7 +179,7 @@ def run_reference_count(P: dict, out_dir: Path, data: StudyData | None = None) -
     each count is itself Haar-uniform.
     """
     data = data or prepare_data(data_config(P))
-    model, run, _ = train_or_load(P["split"], train_config(P), data)
+    model, run, _ = train_model(P, data)
     bench = data.manifest.object_names("train")
     unseen = data.manifest.split_objects(P["split"])
     counts = [c for c in P["reference_counts"] if c <= data.cfg.n_references]
@@ -228,7 +228,7 @@ def run_fast_vs_greedy(P: dict, out_dir: Path, data: StudyData | None = None) ->
     from .retrieval import model_scorer, search_all
 
     data = data or prepare_data(data_config(P))
-    model, run, _ = train_or_load(P["split"], train_config(P), data)
+    model, run, _ = train_model(P, data)
     dev = resolve_device(P["device"])
     bench = data.manifest.object_names("train")
     bank = reference_bank(model, data, bench, device=P["device"], k_ac=P["k_ac"])

@@ -19,8 +19,8 @@ from . import paper
 from .baselines import HogModel
 from .fileio import atomic_write_json
 from .figures import _plt, save
-from .stage_train import data_config, train_config
-from .study import StudyData, evaluate, prepare_data, reference_bank, summary_row, train_or_load
+from .stage_train import data_config, train_model
+from .study import StudyData, evaluate, prepare_data, reference_bank, summary_row
 from .tables import write_table
 
 
@@ -37,7 +37,7 @@ def evaluate_split(P: dict[str, Any], data: StudyData, split: int, model=None) -
     """Unseen / seen / occluded-unseen results of one split's model."""
     m = data.manifest
     if model is None:
-        model, _, _ = train_or_load(split, train_config(P), data)
+        model, _, _ = train_model(P, data, split)
     bench = m.object_names("train")
     bank = reference_bank(model, data, bench, device=P["device"], k_ac=P["k_ac"])
     unseen = m.split_objects(split)
@@ -87,7 +87,7 @@ def run_baselines(P: dict[str, Any], data: StudyData, splits: list[int]) -> pd.D
         unseen = m.split_objects(s)
         r = evaluate(hog, hog_bank, {n: data.test_q[n] for n in unseen}, device="cpu", **kw)
         rows.append({"method": "HOG", "split": s, **_acc(r)})
-        gm, _, _ = train_or_load(s, train_config(P, scales="global"), data)
+        gm, _, _ = train_model(P, data, s, scales="global")
         gbank = reference_bank(gm, data, bench, device=P["device"], k_ac=P["k_ac"])
         r = evaluate(gm, gbank, {n: data.test_q[n] for n in unseen}, device=P["device"], **kw)
         rows.append({"method": "Global", "split": s, **_acc(r)})
@@ -271,7 +271,7 @@ def byo_demo(P: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     png = out_dir / "byo_query.png"
     png.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(png), cv2.cvtColor(np.ascontiguousarray(q.images[0]), cv2.COLOR_RGB2BGR))
-    model, _, _ = train_or_load(P["splits"][0], train_config(P), data)
+    model, _, _ = train_model(P, data, P["splits"][0])
     res = estimate_rotation(model, entry.mesh.resolve(), png, n_refs=P["byo_refs"], render_size=P["render_size"],
                             color=entry.color, device=P["device"], cache=P["cache_dir"] or None)
     overlay_figure(res, out_dir / "byo_overlay.png")

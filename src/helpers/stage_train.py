@@ -50,7 +50,20 @@ def train_config(P: dict[str, Any], fusion: str | None = None, scales: str | Non
                        batch_size=P["batch_size"], lr=P["lr"], lr_milestones=tuple(P["lr_milestones"]),
                        weighted_loss=P["weighted_loss"] if weighted_loss is None else weighted_loss,
                        seed=P["seed"], device=P["device"], occlusion=P["train_occlusion"], augment=AugmentConfig(),
-                       model=mc)
+                       val_every=P["val_every"], model=mc)
+
+
+def train_model(P: dict[str, Any], data: StudyData, split: int | None = None, **overrides: Any):
+    """:func:`helpers.study.train_or_load` with the notebook's training parameters.
+
+    ``split`` defaults to ``P["split"]``; ``overrides`` go to :func:`train_config`
+    (ablation variants). Validation uses ``P["val_refs"]`` references per seen object.
+    Returns (model, run folder, info) like ``train_or_load``.
+    """
+    if P["val_refs"] < 1:
+        raise ValueError(f"val_refs: expected a positive number of references per seen object, got {P['val_refs']}")
+    return train_or_load(P["split"] if split is None else split, train_config(P, **overrides), data,
+                         val_refs_per_object=P["val_refs"])
 
 
 def chance_levels(n_objects: int, threshold_deg: float = 30.0) -> dict[str, float]:
@@ -74,7 +87,7 @@ def run_train_stage(P: dict[str, Any], out_dir: Path, data: StudyData | None = N
 
     data = data or prepare_data(data_config(P))
     cfg = train_config(P)
-    model, run, info = train_or_load(P["split"], cfg, data)
+    model, run, info = train_model(P, data)
     hist = info.get("history", {}) or {}
     atomic_write_json(out_dir / "history.json", hist)
     plot_history(hist.get("history", []), out_dir / "loss.png")
