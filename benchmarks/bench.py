@@ -937,6 +937,10 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
         "background_load_start": background_load(1.0), "section_seconds": {}, "memory": {}}
     res["provenance"] = run_record("bench", {**cfg.to_dict(), "checkpoint": checkpoint})
     res["measured_sources"] = source_hashes()
+    # Build (or load) the fused fusion kernel before anything is timed, and say whether it is used.
+    from helpers import fusion_kernel
+    fusion_kernel.get()
+    res["fusion_kernel"] = fusion_kernel.status()
 
     sampler = PeakSampler().start()
 
@@ -986,7 +990,7 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
     return res
 
 
-MEASURED_MODULES = ("model", "retrieval", "features", "datasets", "render", "rotations", "losses", "train")
+MEASURED_MODULES = ("model", "fusion_kernel", "retrieval", "features", "datasets", "render", "rotations", "losses", "train")
 
 
 def source_hashes() -> dict:

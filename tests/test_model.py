@@ -253,3 +253,72 @@ def test_encode_is_differentiable_and_dropout_only_in_train():
     model.score(f[:1], f[1:]).sum().backward()
     assert model.encoder.stem.weight.grad is not None
     assert model.fusion.mlp[0].weight.grad is not None
+
+
+# ------------------------------------------------------------- fused CPU kernel
+
+def _kernel_or_skip():
+    from helpers import fusion_kernel
+
+    if fusion_kernel.get() is None:
+        pytest.skip(f"fusion kernel unavailable: {fusion_kernel.status()['reason']}")
+
+
+@pytest.mark.parametrize("fusion, scales", [("adaptive", (32, 16, 13)), ("sigmoid", (32, 16, 13)),
+                                            ("softmax", (16, 13)), ("adaptive", (13,)), ("sigmoid", (32,))])
+@pytest.mark.parametrize("nq", [1, 3])
+def test_kernel_matches_eager(fusion, scales, nq):
+    """The fused kernel computes the eager fusion's scores (float16 and float32 references, any chunking)."""
+    _kernel_or_skip()
+    model = _model(image_size=64, fusion=fusion, scales=scales)
+    with torch.no_grad():  # non-trivial logit weights, so the fusion weights are far from uniform
+        for lin in model.fusion.logit.values():
+            lin.weight.normal_(0.0, 3.0)
+    q, r = _feats(model, nq, seed=7), _feats(model, 29, seed=8)
+    with torch.inference_mode():
+        for refs in (r, r.half()):
+            model.fusion_backend = "eager"
+            want = model.score(q, refs, chunk=8)
+            model.fusion_backend = "kernel"
+            for chunk in (1, 8, 1024):
+                got = model.score(q, refs, chunk=chunk)
+                assert got.shape == want.shape
+                assert torch.allclose(got, want, atol=1e-6), float((got - want).abs().max())
+
+
+def test_kernel_results_do_not_depend_on_threads():
+    _kernel_or_skip()
+    model = _model(image_size=64)
+    model.fusion_backend = "kernel"
+    q, r = _feats(model, 2, seed=9), _feats(model, 50, seed=10).half()
+    n = torch.get_num_threads()
+    try:
+        with torch.inference_mode():
+            torch.set_num_threads(1)
+            one = model.score(q, r)
+            torch.set_num_threads(2)
+            two = model.score(q, r)
+    finally:
+        torch.set_num_threads(n)
+    assert torch.equal(one, two)
+
+
+def test_kernel_not_used_with_autograd_and_can_be_disabled(monkeypatch):
+    from helpers import fusion_kernel
+
+    model = _model(image_size=64)
+    q, r = _feats(model, 1, seed=11), _feats(model, 3, seed=12)
+    # With gradients the eager (differentiable) path runs, whatever the backend setting.
+    model.fusion_backend = "kernel"
+    assert model._kernel(q, r) is None
+    s = model.score(q.requires_grad_(), r)
+    assert s.requires_grad
+    monkeypatch.setenv("HELPERS_FUSION_KERNEL", "0")
+    assert fusion_kernel.get() is None
+    assert "disabled" in fusion_kernel.status()["reason"]
+    model.fusion_backend = "auto"
+    with torch.inference_mode():
+        assert torch.isfinite(model.score(q.detach(), r)).all()  # eager fallback
+        model.fusion_backend = "kernel"
+        with pytest.raises(RuntimeError, match="kernel is unavailable"):
+            model.score(q.detach(), r)

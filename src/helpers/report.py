@@ -74,10 +74,15 @@ def _provenance(base: Path) -> list[str]:
     r = _load(runs[0])
     git = r.get("git", {})
     dev = r.get("device", {})
+    gl = (_load(base / "01_render" / "render_summary.json") or {}).get("gl_platform") or r.get("gl_platform")
+    fk = dev.get("fusion_kernel") or {}
+    fusion_impl = ("" if dev.get("resolved", "cpu") != "cpu" else
+                   "; fusion: fused CPU kernel" if fk.get("available") else
+                   f"; fusion: eager PyTorch ({fk.get('reason')})" if fk else "")
     out = ["## Provenance", "",
            f"- git commit `{git.get('commit')}`{' (uncommitted changes)' if git.get('dirty') else ''}",
            f"- device `{dev.get('resolved')}` ({dev.get('cpu_count')} CPUs, torch threads {dev.get('torch_threads')}"
-           f"{', GPU ' + dev['gpu'] if dev.get('gpu') else ''}); GL `{r.get('gl_platform')}`",
+           f"{', GPU ' + dev['gpu'] if dev.get('gpu') else ''}){fusion_impl}; GL `{gl}`",
            "- packages: " + ", ".join(f"{k} {v}" for k, v in (r.get("packages") or {}).items() if v),
            f"- seed {r.get('seed')}; each notebook's parameters are in `<notebook>/run.json`", ""]
     if timings:

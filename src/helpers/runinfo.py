@@ -50,6 +50,12 @@ def device_info(device: str = "auto") -> dict[str, Any]:
             "cpu_count": os.cpu_count(), "cpu": platform.processor() or platform.machine()}
     if d.type == "cuda":
         info["gpu"] = torch.cuda.get_device_name(d)
+    else:
+        from . import fusion_kernel
+
+        # Which CPU fusion implementation scores pairs in this run (timings depend on it).
+        fusion_kernel.get()
+        info["fusion_kernel"] = fusion_kernel.status()
     return info
 
 

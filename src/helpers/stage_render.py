@@ -11,6 +11,7 @@ import pandas as pd
 from .fileio import atomic_write_json
 from .figures import view_grid
 from .manifest import load_manifest, verify
+from .render import gl_platform
 from .study import DataConfig, prepare_data
 from .tables import write_table
 
@@ -50,6 +51,7 @@ def run_render_stage(cfg: DataConfig, out_dir: Path, n_show: int = 4) -> dict:
     summary = {
         "data_config": asdict(cfg), "objects": list(data.refs), "views": sum(len(s) for s in sets),
         "verify_seconds": t_verify, "render_or_load_seconds": t_render,
+        "gl_platform": gl_platform(),  # the headless GL backend renders used (probed if nothing rendered)
         "reference_bytes_per_object": ref_bytes / n_obj,
         "reference_bytes_per_10000_per_object": ref_bytes / n_obj / cfg.n_references * 10000,
         "cache_keys": {f"{kind}/{n}": vs.meta["key"] for kind in ("refs", "train_q", "val_q", "test_q", "occluded_q")

@@ -1,0 +1,239 @@
+"""Fused CPU kernel for the inference-time fusion of one query against many references.
+
+The eager PyTorch fusion (:func:`helpers.model._fuse_block`) runs five or six
+element-wise passes over each (references x C x X) block and pays Python
+dispatch per small block; on CPU it reaches 1-3 % of the machine's GEMM rate
+(``benchmarks/README.md``). This kernel does the same arithmetic in two
+passes over each reference, in cache:
+
+1. ``p = q * r_j`` (float16 references converted with F16C when the compiler
+   targets it) and the logits ``l_k(x) = sum_c W[k, c] p[c, x] + b[k]``;
+2. the normalised fusion weights ``a(x)`` (stable softmax of the variant's
+   log-weights, as :meth:`helpers.model.Fusion.log_weights`) and
+   ``v[c] = sum_x a(x) p[c, x]``,
+
+parallel over references with torch's intra-op threads (each reference is
+computed by one thread, so results do not depend on the thread count).
+
+It is built on first use with ``torch.utils.cpp_extension.load_inline`` (gcc
+and ninja, about 30 s once per machine) into ``<cache>/ext/<hash>`` and
+loaded from there afterwards. Importing this module builds nothing. If the
+build fails (no compiler, no ninja) or ``HELPERS_FUSION_KERNEL=0`` is set,
+:func:`get` returns None and callers use the eager path; :func:`status`
+says which and why. Inference only: there is no backward.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import threading
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+from .paths import cache_dir
+
+#: log-weight rule per fusion variant (see helpers.model.Fusion.log_weights).
+MODES = {"adaptive": 0, "sigmoid": 1, "softmax": 2}
+
+_SOURCE = r"""
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+#include <cmath>
+#include <cstring>
+#include <vector>
+#if defined(__F16C__)
+#include <immintrin.h>
+#endif
+
+// n values -> float32 (F16C for 8 halves at a time when available).
+static inline void to_float(const at::Half* src, float* dst, int64_t n) {
+  int64_t i = 0;
+#if defined(__F16C__)
+  for (; i + 8 <= n; i += 8)
+    _mm256_storeu_ps(dst + i, _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(src + i))));
+#endif
+  for (; i < n; ++i) dst[i] = static_cast<float>(src[i]);
+}
+static inline void to_float(const float* src, float* dst, int64_t n) { std::memcpy(dst, src, n * sizeof(float)); }
+
+static inline float log_sigmoid(float l) {
+  return l < 0.f ? l - std::log1p(std::exp(l)) : -std::log1p(std::exp(-l));
+}
+
+// q (C, X) contiguous float; reference j, channel c, location x at r[j*sj + c*sc + off + x].
+// out (R, C): out[j, c] = sum_x a_j(x) q[c, x] r_j[c, x].
+template <int K, typename T>
+static void fuse_impl(const float* q, const T* r, int64_t sj, int64_t sc, int64_t off,
+                      const float* w, const float* b, float* out,
+                      int64_t R, int64_t C, int64_t X, int64_t mode) {
+  at::parallel_for(0, R, 1, [&](int64_t j0, int64_t j1) {
+    std::vector<float> lg(K * X), a(X), p(C * X);
+    for (int64_t j = j0; j < j1; ++j) {
+      const T* rj = r + j * sj + off;
+      for (int64_t c = 0; c < C; ++c) to_float(rj + c * sc, p.data() + c * X, X);
+      // Pass 1: local similarity p = q * r_j (kept for pass 2) and the logits.
+      for (int64_t k = 0; k < K; ++k)
+        for (int64_t x = 0; x < X; ++x) lg[k * X + x] = b[k];
+      float* l0 = lg.data();
+      float* l1 = lg.data() + (K > 1 ? X : 0);
+      for (int64_t c = 0; c < C; ++c) {
+        float* pc = p.data() + c * X;
+        const float* qc = q + c * X;
+        const float w0 = w[c];
+        const float w1 = K > 1 ? w[C + c] : 0.f;
+        for (int64_t x = 0; x < X; ++x) {
+          const float v = pc[x] * qc[x];
+          pc[x] = v;
+          l0[x] += w0 * v;
+          if (K > 1) l1[x] += w1 * v;
+        }
+      }
+      // Fusion weights: softmax over x of the variant's log-weights, max subtracted.
+      float m = 0.f;
+      for (int64_t x = 0; x < X; ++x) {
+        float v;
+        if (mode == 0) v = l1[x] + log_sigmoid(l0[x]);
+        else if (mode == 1) v = log_sigmoid(l0[x]);
+        else v = l0[x];
+        a[x] = v;
+        m = (x == 0 || v > m) ? v : m;
+      }
+      float s = 0.f;
+      for (int64_t x = 0; x < X; ++x) { a[x] = std::exp(a[x] - m); s += a[x]; }
+      const float inv = 1.f / s;
+      for (int64_t x = 0; x < X; ++x) a[x] *= inv;
+      // Pass 2: weighted sum over locations.
+      float* oj = out + j * C;
+      for (int64_t c = 0; c < C; ++c) {
+        const float* pc = p.data() + c * X;
+        float acc = 0.f;
+        for (int64_t x = 0; x < X; ++x) acc += pc[x] * a[x];
+        oj[c] = acc;
+      }
+    }
+  });
+}
+
+template <typename T>
+static void dispatch_k(int64_t K, const float* q, const T* r, int64_t sj, int64_t sc, int64_t off,
+                       const float* w, const float* b, float* out, int64_t R, int64_t C, int64_t X, int64_t mode) {
+  if (K == 2) fuse_impl<2, T>(q, r, sj, sc, off, w, b, out, R, C, X, mode);
+  else fuse_impl<1, T>(q, r, sj, sc, off, w, b, out, R, C, X, mode);
+}
+
+torch::Tensor fuse(torch::Tensor q, torch::Tensor r, int64_t off, int64_t X,
+                   torch::Tensor w, torch::Tensor b, int64_t mode) {
+  TORCH_CHECK(q.device().is_cpu() && r.device().is_cpu(), "fuse: CPU tensors only");
+  TORCH_CHECK(q.dim() == 2 && q.scalar_type() == torch::kFloat && q.is_contiguous(), "fuse: q must be (C,X) float32 contiguous");
+  TORCH_CHECK(r.dim() == 3 && r.stride(2) == 1, "fuse: r must be (R,C,L) with unit stride on L");
+  TORCH_CHECK(w.dim() == 2 && w.is_contiguous() && w.scalar_type() == torch::kFloat, "fuse: w must be (K,C) float32");
+  TORCH_CHECK(b.dim() == 1 && b.is_contiguous() && b.scalar_type() == torch::kFloat, "fuse: b must be (K,) float32");
+  const int64_t R = r.size(0), C = r.size(1), K = w.size(0);
+  TORCH_CHECK(q.size(0) == C && q.size(1) == X && w.size(1) == C && b.size(0) == K, "fuse: shape mismatch");
+  TORCH_CHECK(K == 1 || K == 2, "fuse: K must be 1 or 2");
+  TORCH_CHECK(mode >= 0 && mode <= 2 && (mode != 0 || K == 2), "fuse: bad mode");
+  TORCH_CHECK(off >= 0 && off + X <= r.size(2), "fuse: level slice out of range");
+  auto out = torch::empty({R, C}, q.options());
+  if (R == 0) return out;
+  if (r.scalar_type() == torch::kHalf)
+    dispatch_k<at::Half>(K, q.data_ptr<float>(), r.data_ptr<at::Half>(), r.stride(0), r.stride(1), off,
+                         w.data_ptr<float>(), b.data_ptr<float>(), out.data_ptr<float>(), R, C, X, mode);
+  else if (r.scalar_type() == torch::kFloat)
+    dispatch_k<float>(K, q.data_ptr<float>(), r.data_ptr<float>(), r.stride(0), r.stride(1), off,
+                      w.data_ptr<float>(), b.data_ptr<float>(), out.data_ptr<float>(), R, C, X, mode);
+  else
+    TORCH_CHECK(false, "fuse: r must be float16 or float32");
+  return out;
+}
+"""
+
+# -ffast-math lets gcc vectorise the sums (the kernel needs no inf/NaN semantics: the max starts
+# from the first value); -fopenmp makes at::parallel_for actually use torch's threads.
+_CFLAGS = ["-O3", "-march=native", "-ffast-math", "-fopenmp"]
+_LDFLAGS = ["-fopenmp"]
+
+_lock = threading.Lock()
+_state: dict[str, Any] = {"module": None, "tried": False, "reason": "not built yet", "build_seconds": None,
+                          "build_dir": None}
+
+
+def _cpu_tag() -> str:
+    """Distinguishes machines for -march=native builds (ISA flags of this CPU)."""
+    flags = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                flags = line
+                break
+    except OSError:
+        pass
+    return hashlib.sha256(f"{platform.machine()}|{flags}".encode()).hexdigest()[:8]
+
+
+def build_dir() -> Path:
+    """Where the extension is built: ``$HELPERS_EXT_DIR`` or ``<cache>/ext``, then a content hash."""
+    import torch
+
+    root = Path(os.environ["HELPERS_EXT_DIR"]) if os.environ.get("HELPERS_EXT_DIR") else cache_dir() / "ext"
+    key = hashlib.sha256("|".join([_SOURCE, " ".join(_CFLAGS + _LDFLAGS), torch.__version__, _cpu_tag()]).encode())
+    return root / f"fusion_{key.hexdigest()[:16]}"
+
+
+def _build() -> Any:
+    import torch.utils.cpp_extension as ext
+
+    try:
+        import ninja  # noqa: F401  (the PyPI wheel ships the binary torch's builder calls)
+        ninja_bin = getattr(ninja, "BIN_DIR", None)
+    except ImportError:
+        ninja_bin = None
+    where = build_dir()
+    where.mkdir(parents=True, exist_ok=True)
+    old_path = os.environ.get("PATH", "")
+    if ninja_bin:
+        # torch looks ninja up on PATH; a venv used without activation does not have it there.
+        os.environ["PATH"] = f"{ninja_bin}{os.pathsep}{old_path}"
+    try:
+        return ext.load_inline(name=f"helpers_fusion_{where.name.split('_')[1]}", cpp_sources=_SOURCE,
+                               functions=["fuse"], extra_cflags=_CFLAGS, extra_ldflags=_LDFLAGS, build_directory=str(where),
+                               verbose=False)
+    finally:
+        os.environ["PATH"] = old_path
+
+
+def get() -> Any | None:
+    """The compiled module (with ``fuse``), building it on first call; None if unavailable.
+
+    Disabled by ``HELPERS_FUSION_KERNEL=0``. A failed build is reported once
+    as a warning and not retried in this process.
+    """
+    if os.environ.get("HELPERS_FUSION_KERNEL", "1").strip().lower() in ("0", "false", "no", "off"):
+        _state["reason"] = "disabled by HELPERS_FUSION_KERNEL"
+        return None
+    if _state["tried"]:
+        return _state["module"]
+    with _lock:
+        if not _state["tried"]:
+            t0 = time.perf_counter()
+            try:
+                _state["module"] = _build()
+                _state["reason"] = None
+                _state["build_dir"] = str(build_dir())
+            except Exception as e:  # compiler, ninja or headers missing: fall back, say why
+                _state["module"] = None
+                _state["reason"] = f"build failed: {type(e).__name__}: {str(e).splitlines()[0][:300] if str(e) else ''}"
+                warnings.warn(f"helpers.fusion_kernel: {_state['reason']}; using the eager PyTorch fusion "
+                              "(slower, same results)", RuntimeWarning, stacklevel=2)
+            _state["build_seconds"] = time.perf_counter() - t0
+            _state["tried"] = True
+    return _state["module"]
+
+
+def status() -> dict[str, Any]:
+    """{"available", "reason" (None when available), "build_seconds" (this process), "build_dir"}."""
+    return {"available": _state["module"] is not None, "reason": _state["reason"],
+            "build_seconds": _state["build_seconds"], "build_dir": _state["build_dir"]}
