@@ -20,6 +20,16 @@ def test_every_notebook_has_a_literal_parameters_cell():
                 assert "#" in line, f"{n}: parameter line without a comment: {line}"
 
 
+def test_papermill_sees_every_declared_parameter():
+    """papermill's own parser (``--help-notebook``, its unknown-parameter warning) must read every line."""
+    from papermill.inspection import inspect_notebook
+
+    for n in notebooks():
+        seen = set(inspect_notebook(notebook_path(n)))
+        want = set(declared_parameters(notebook_path(n)))
+        assert seen == want, f"{n}: papermill cannot parse {sorted(want - seen)}"
+
+
 def test_notebooks_are_committed_without_outputs():
     from helpers.params import NOTEBOOK_DIR
 

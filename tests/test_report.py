@@ -43,3 +43,17 @@ def test_report_states_noise_of_claims(tmp_path):
            "**within noise**" in rep
     assert "order: **does not hold** in the point estimate (b vs a +3.0 [-1.5, +7.2]; b vs a -2.0" in rep
     assert "_Noise: paired bootstrap._" in rep
+
+
+def test_tables_format_numbers_by_magnitude():
+    import pandas as pd
+
+    from helpers.report import _md
+
+    df = pd.DataFrame([{"refs": 32.0, "rot_acc": 4.1666, "s/query": 0.0213, "split": "#1", "ok": True},
+                       {"refs": 512.0, "rot_acc": 8.3, "s/query": 0.61, "split": "mean", "ok": False}])
+    lines = _md(df).splitlines()
+    assert lines[0].split("|")[1].strip() == "split"  # label column first
+    row = [c.strip() for c in lines[2].split("|")[1:-1]]
+    assert row == ["#1", "32", "4.2", "0.021", "True"]
+    assert "512" in lines[3] and "0.610" in lines[3]

@@ -519,6 +519,9 @@ class OrientationNet(nn.Module):
             or a mean cosine in [-1, 1] for "avg" and "global".
 
         Differentiable (used for training) and safe under inference_mode.
+        Without autograd on CPU the learned fusion runs in the fused kernel of
+        :mod:`helpers.fusion_kernel` (see ``fusion_backend``); same scores to
+        float32 rounding.
         """
         self._check(q, "q")
         self._check(r, "r")

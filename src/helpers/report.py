@@ -16,14 +16,33 @@ import pandas as pd
 from . import paper
 from .fileio import atomic_write_text
 from .paths import REPO_ROOT
+from .runinfo import git_revision
 
 
 def _load(path: Path) -> Any:
     return json.loads(path.read_text()) if path.exists() else None
 
 
+_LABEL_COLUMNS = ("split", "method", "variant", "setting")
+
+
 def _md(df: pd.DataFrame) -> str:
-    return df.to_markdown(index=False, floatfmt=".1f")
+    """Markdown table: label columns first; per numeric column whole numbers as integers, values
+    below 1 with 3 decimals (seconds per query), others with 1 (accuracies in %)."""
+    df = df[[c for c in _LABEL_COLUMNS if c in df.columns] + [c for c in df.columns if c not in _LABEL_COLUMNS]]
+    out = df.copy().astype(object)
+    align = []
+    for c in df.columns:
+        col = pd.to_numeric(df[c], errors="coerce")
+        numeric = not (df[c].dtype == bool or col.isna().all() or col.notna().sum() != df[c].notna().sum())
+        align.append("right" if numeric else "left")
+        if not numeric:
+            continue
+        finite = col.dropna()
+        whole = bool(((finite - finite.round()).abs() < 1e-9).all())
+        nd = 0 if whole else (1 if finite.abs().max() >= 1 else 3)
+        out[c] = [("" if pd.isna(v) else f"{v:,.0f}" if nd == 0 else f"{v:.{nd}f}") for v in col]
+    return out.to_markdown(index=False, disable_numparse=True, colalign=align)
 
 
 def _yes(b: Any) -> str:
@@ -79,8 +98,11 @@ def _provenance(base: Path) -> list[str]:
     fusion_impl = ("" if dev.get("resolved", "cpu") != "cpu" else
                    "; fusion: fused CPU kernel" if fk.get("available") else
                    f"; fusion: eager PyTorch ({fk.get('reason')})" if fk else "")
+    built = git_revision()
     out = ["## Provenance", "",
-           f"- git commit `{git.get('commit')}`{' (uncommitted changes)' if git.get('dirty') else ''}",
+           f"- notebooks ran at git commit `{git.get('commit')}`{' (uncommitted changes)' if git.get('dirty') else ''}; "
+           f"this file was assembled from their output files at `{built.get('commit')}`"
+           f"{' (uncommitted changes)' if built.get('dirty') else ''}",
            f"- device `{dev.get('resolved')}` ({dev.get('cpu_count')} CPUs, torch threads {dev.get('torch_threads')}"
            f"{', GPU ' + dev['gpu'] if dev.get('gpu') else ''}){fusion_impl}; GL `{gl}`",
            "- packages: " + ", ".join(f"{k} {v}" for k, v in (r.get("packages") or {}).items() if v),
@@ -112,7 +134,14 @@ def _train(d: Path) -> list[str]:
     u = m["unseen_test"]
     ch = m["chance"]
     bv = m.get("best_val") or {}
+    hist = (_load(d / "history.json") or {}).get("history") or []
+    run = (_load(d / "run.json") or {}).get("parameters") or {}
+    budget = (f"- training budget: {hist[-1]['global_step']:,} optimiser steps of {run.get('batch_size', '?')} queries "
+              f"in {sum(h['seconds'] for h in hist):.0f} s (paper: 200 epochs over every real training image, "
+              f"batch 16); the quick budget is meant for trends and plumbing, not the paper's accuracy"
+              if hist else "- training budget: n/a")
     return ["## 2 · Training (split #%d)" % m["split"], "",
+            budget,
             f"- parameters: encoder/decoder {m['parameters']['encoder_decoder']:,}, fusion head "
             f"{m['parameters']['fusion_head']:,} (paper: about 1.9 M and 50 K)",
             f"- training speed {_fmt(m['train_images_per_s'])} images/s; selected epoch {bv.get('epoch')} on held-out "
