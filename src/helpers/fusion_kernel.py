@@ -183,7 +183,8 @@ def build_dir() -> Path:
     return root / f"fusion_{key.hexdigest()[:16]}"
 
 
-def _build() -> Any:
+def _build() -> tuple[Any, Path]:
+    """Build (or load an earlier build of) the extension; returns (module, its build folder)."""
     import torch.utils.cpp_extension as ext
 
     try:
@@ -198,9 +199,10 @@ def _build() -> Any:
         # torch looks ninja up on PATH; a venv used without activation does not have it there.
         os.environ["PATH"] = f"{ninja_bin}{os.pathsep}{old_path}"
     try:
-        return ext.load_inline(name=f"helpers_fusion_{where.name.split('_')[1]}", cpp_sources=_SOURCE,
-                               functions=["fuse"], extra_cflags=_CFLAGS, extra_ldflags=_LDFLAGS, build_directory=str(where),
-                               verbose=False)
+        module = ext.load_inline(name=f"helpers_fusion_{where.name.split('_')[1]}", cpp_sources=_SOURCE,
+                                 functions=["fuse"], extra_cflags=_CFLAGS, extra_ldflags=_LDFLAGS,
+                                 build_directory=str(where), verbose=False)
+        return module, where
     finally:
         os.environ["PATH"] = old_path
 
@@ -220,9 +222,10 @@ def get() -> Any | None:
         if not _state["tried"]:
             t0 = time.perf_counter()
             try:
-                _state["module"] = _build()
+                module, where = _build()
+                _state["module"] = module
                 _state["reason"] = None
-                _state["build_dir"] = str(build_dir())
+                _state["build_dir"] = str(where)
             except Exception as e:  # compiler, ninja or headers missing: fall back, say why
                 _state["module"] = None
                 _state["reason"] = f"build failed: {type(e).__name__}: {str(e).splitlines()[0][:300] if str(e) else ''}"
