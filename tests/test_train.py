@@ -57,7 +57,7 @@ def tiny_cfg(**kw) -> TrainConfig:
 def test_augment_is_deterministic_and_updates_label():
     img = make_views("x", 1, 0, background=True).images[0]
     R = haar_uniform(1, 1)[0]
-    cfg = AugmentConfig(occlusion=True, occlusion_p=1.0, blur_p=1.0)
+    cfg = AugmentConfig(occlusion=True, occlusion_p=1.0, blur_p=1.0, inplane_p=1.0)
     a1, r1 = augment_image(img, R, np.random.default_rng(5), cfg)
     a2, r2 = augment_image(img, R, np.random.default_rng(5), cfg)
     assert a1.dtype == np.uint8 and a1.shape == img.shape
@@ -65,18 +65,68 @@ def test_augment_is_deterministic_and_updates_label():
     assert not np.array_equal(a1, img)
     # The label moved by an in-plane rotation only: R' = Rz R with |angle| <= inplane_deg.
     delta = r1 @ R.T
-    assert np.allclose(delta[2], [0, 0, 1], atol=1e-9) and geodesic_deg(r1, R) <= cfg.inplane_deg + 1e-6
+    assert np.allclose(delta[2], [0, 0, 1], atol=1e-9) and geodesic_deg(r1, R) <= cfg.inplane_max + 1e-6
     # Same draw with only the in-plane switch: the label equals inplane_rotate_label at that angle.
-    only = AugmentConfig(hsv=False, noise=False, blur=False)
+    only = AugmentConfig(hsv=False, noise=False, blur=False, inplane_p=1.0)
     _, r3 = augment_image(img, R, np.random.default_rng(5), only)
     angle = np.degrees(np.arctan2(delta[0, 1], delta[0, 0]))  # delta = rot_z(-angle): [0,1] = sin(angle)
     assert np.allclose(r3, inplane_rotate_label(R, angle), atol=1e-9)
     off, roff = augment_image(img, R, np.random.default_rng(5), AugmentConfig(enabled=False))
-    assert off is img and np.array_equal(roff, R)
+    assert np.array_equal(off, img) and np.array_equal(roff, R)
     imgs, rots = augment_batch(np.stack([img, img]), np.stack([R, R]), np.random.default_rng(0), cfg)
     assert imgs.shape == (2, SIZE, SIZE, 3) and rots.shape == (2, 3, 3)
     with pytest.raises(ValueError, match="blur_p"):
         AugmentConfig(blur_p=2.0)
+
+
+def test_inplane_recrop_rotates_the_whole_view_without_mirroring_or_cutting():
+    """Authors' in-plane augmentation: rotate the whole stored view on an enlarged canvas,
+    re-take the tight box from the rotated mask. New area is exactly zero (nothing mirrored),
+    the object is never cut, and the output is the crop size."""
+    from helpers.augment import box_crop, centre_crop, rotate_inplane
+
+    C, S = 48, 32
+    img = np.full((C, C, 3), 200, np.uint8)  # bright "surroundings": a mirrored border would copy them
+    mask = np.zeros((C, C), bool)
+    mask[14:34, 18:30] = True  # an upright 20 x 12 object
+    img[mask] = (255, 0, 0)
+    for angle in (0.0, 17.0, -45.0, 60.0, 90.0):
+        rot, rmask = rotate_inplane(img, angle, mask)
+        full = rotate_inplane(np.full_like(img, 255), angle)[0]
+        # Pixels outside the rotated canvas are zero, never copies of the border.
+        assert (rot[full.max(axis=2) == 0] == 0).all()
+        assert rot.shape[0] >= C and rot.shape[1] >= C
+        # Nothing cut: the rotated mask keeps the object's area.
+        assert abs(rmask.sum() - mask.sum()) <= 0.1 * mask.sum()
+        out = box_crop(rot, rmask, S)
+        assert out.shape == (S, S, 3)
+    # A quarter turn makes the tall object wide: its red pixels span the crop's width.
+    rot, rmask = rotate_inplane(img, 90.0, mask)
+    red = (box_crop(rot, rmask, S)[..., 0] > 200) & (box_crop(rot, rmask, S)[..., 1] < 60)
+    ys, xs = np.nonzero(red)
+    assert xs.max() - xs.min() > 1.4 * (ys.max() - ys.min())
+    assert np.array_equal(centre_crop(img, S), img[8:40, 8:40])
+
+
+def test_inplane_recrop_label_matches_a_render(manifest):
+    """The augmented label is the rotation whose reference render looks like the augmented
+    query: the silhouette of a query re-cropped after a 40 deg turn overlaps the reference
+    rendered at the new label (IoU > 0.8), and not the one at the old label."""
+    from helpers.meshes import load_object
+    from helpers.render import RenderConfig, render_reference
+
+    obj = load_object("mug", manifest)
+    rc = RenderConfig(size=48, render_size=72)
+    R = haar_uniform(1, seed=4)[0]
+    img, mask = render_reference(obj, R, rc)
+    cfg = AugmentConfig(hsv=False, noise=False, blur=False, inplane_p=1.0, inplane_deg=1e6, inplane_max=40.0)
+    out, R2 = augment_image(img, R, np.random.default_rng(1), cfg, mask=mask, size=48)
+    assert abs(geodesic_deg(R2, R) - 40.0) < 1e-6  # N(0, 1e6 deg) clipped at 40
+    _, m_new = render_reference(obj, R2, rc)
+    q = out.max(axis=2) > 0
+    iou = lambda a, b: (a & b).sum() / (a | b).sum()  # noqa: E731
+    assert iou(q, m_new) > 0.8
+    assert iou(q, mask) < iou(q, m_new)
 
 
 # ------------------------------------------------------------------------ config

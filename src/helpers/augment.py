@@ -5,7 +5,14 @@ Works on uint8 RGB numpy images (S, S, 3), the format of
 its own so per-image magnitudes are independent. References (clean renders)
 are not augmented.
 
-Order: in-plane rotation (geometry, changes the label) -> occlusion -> HSV
+Training queries may be stored with context around the crop (side C > S, the
+crop being the central S x S). The in-plane augmentation follows the
+authors' code: rotate the WHOLE stored view (canvas enlarged, corners zero,
+nothing mirrored, nothing cut), then re-take the object's tight square box
+from the rotated mask and resize it to S. Un-rotated queries take the
+central crop.
+
+Order: in-plane rotation / crop (geometry, changes the label) -> occlusion -> HSV
 jitter -> blur -> noise (sensor-like effects last, so they also cover the
 occluder). Every random draw comes from the caller's ``numpy.random.Generator``
 and happens in a fixed order whatever the switches, so a given seed and
@@ -16,8 +23,11 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
 
+import math
+
 import cv2
 import numpy as np
+from scipy.special import ndtri
 
 from .rotations import inplane_rotate_label
 
@@ -33,12 +43,12 @@ class AugmentConfig:
         noise: additive Gaussian noise with sigma uniform in [0, noise_std].
         blur: with probability blur_p, Gaussian blur with sigma uniform in
             [0.1, blur_sigma] px.
-        inplane: with probability inplane_p, rotate the image about its
-            centre by an angle uniform in +-inplane_deg (positive =
-            counter-clockwise on screen, as cv2.getRotationMatrix2D); the
-            rotation label is updated with
-            :func:`helpers.rotations.inplane_rotate_label`. Corners are
-            filled by reflection so no artificial black wedge appears.
+        inplane: with probability inplane_p, rotate the whole view by an
+            angle ~ N(0, inplane_deg) clipped to +-inplane_max (positive =
+            counter-clockwise on screen, as cv2.getRotationMatrix2D) with the
+            canvas enlarged, and re-take the tight box from the rotated mask
+            (authors' code: p 0.5, 30 deg, clipped at 60); the rotation label
+            is updated with :func:`helpers.rotations.inplane_rotate_label`.
         occlusion: with probability occlusion_p, paint one axis-aligned
             rectangle covering a fraction uniform in [occlusion_min,
             occlusion_max] of the image, aspect ratio log-uniform in [1/2, 2],
@@ -56,8 +66,9 @@ class AugmentConfig:
     blur_p: float = 0.5
     blur_sigma: float = 1.5
     inplane: bool = True
-    inplane_p: float = 1.0
-    inplane_deg: float = 45.0
+    inplane_p: float = 0.5
+    inplane_deg: float = 30.0
+    inplane_max: float = 60.0
     occlusion: bool = False
     occlusion_p: float = 0.5
     occlusion_min: float = 0.05
@@ -70,7 +81,7 @@ class AugmentConfig:
         for name in ("blur_p", "inplane_p", "occlusion_p", "sat", "val"):
             if not 0.0 <= float(getattr(self, name)) <= 1.0:
                 raise ValueError(f"AugmentConfig.{name}: expected a value in [0, 1], got {getattr(self, name)!r}")
-        for name in ("hue_deg", "noise_std", "inplane_deg"):
+        for name in ("hue_deg", "noise_std", "inplane_deg", "inplane_max"):
             if float(getattr(self, name)) < 0:
                 raise ValueError(f"AugmentConfig.{name}: expected >= 0, got {getattr(self, name)!r}")
         if not 0.1 <= float(self.blur_sigma):
@@ -90,11 +101,47 @@ class AugmentConfig:
         return cls(**d)
 
 
-def rotate_inplane(image: np.ndarray, angle_deg: float) -> np.ndarray:
-    """Rotate (S, S, 3) uint8 about its centre; positive = counter-clockwise on screen."""
+def rotate_inplane(image: np.ndarray, angle_deg: float, mask: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Rotate (H, W, 3) uint8 and its (H, W) bool mask about the image centre by
+    ``angle_deg`` (positive = counter-clockwise on screen) on an enlarged canvas.
+
+    The canvas grows to hold every rotated pixel, so nothing is cut; new area is
+    zero (black, mask False), nothing is mirrored. ``mask`` None = the whole image.
+    Returns the rotated image (H', W', 3) and mask (H', W').
+    """
     h, w = image.shape[:2]
+    if mask is None:
+        mask = np.ones((h, w), bool)
     m = cv2.getRotationMatrix2D(((w - 1) / 2.0, (h - 1) / 2.0), float(angle_deg), 1.0)
-    return cv2.warpAffine(image, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+    c, s = abs(m[0, 0]), abs(m[0, 1])
+    nw, nh = int(math.ceil(w * c + h * s - 1e-9)), int(math.ceil(w * s + h * c - 1e-9))
+    m[0, 2] += (nw - w) / 2.0
+    m[1, 2] += (nh - h) / 2.0
+    img = cv2.warpAffine(image, m, (nw, nh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    msk = cv2.warpAffine(mask.astype(np.uint8) * 255, m, (nw, nh), flags=cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 127
+    return img, msk
+
+
+def box_crop(image: np.ndarray, mask: np.ndarray, size: int) -> np.ndarray:
+    """The mask's tight bounding box made square (no margin), cropped and resized to
+    ``size`` x ``size`` (zero padding where the square leaves the image)."""
+    from .render import crop_affine, silhouette_box
+
+    cx, cy, side = silhouette_box(mask)
+    M = crop_affine(cx, cy, side, size)
+    return cv2.warpAffine(image, M, (size, size), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_CONSTANT,
+                          borderValue=0)
+
+
+def centre_crop(image: np.ndarray, size: int) -> np.ndarray:
+    """The central ``size`` x ``size`` pixels of a (C, C, 3) view stored with context."""
+    c = image.shape[0]
+    if c < size:
+        raise ValueError(f"centre_crop: image of {c} px is smaller than the crop ({size} px)")
+    o = (c - size) // 2
+    return image[o:o + size, o:o + size]
 
 
 def hsv_jitter(image: np.ndarray, hue_deg: float, sat_scale: float, val_scale: float) -> np.ndarray:
@@ -124,27 +171,34 @@ def occlude(image: np.ndarray, rng: np.random.Generator, min_frac: float, max_fr
 
 
 def augment_image(image: np.ndarray, rotation: np.ndarray, rng: np.random.Generator,
-                  cfg: AugmentConfig) -> tuple[np.ndarray, np.ndarray]:
+                  cfg: AugmentConfig, mask: np.ndarray | None = None,
+                  size: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Augment one query.
 
     Args:
-        image: (S, S, 3) uint8 RGB.
+        image: (C, C, 3) uint8 RGB, the crop (C = size) or the crop with context
+            around it (C > size, crop = central size x size).
         rotation: (3, 3) R_m2c label.
         rng: source of all randomness.
         cfg: switches and magnitudes.
+        mask: (C, C) bool visible-object mask (the in-plane augmentation re-takes
+            the box from it; None = the whole image).
+        size: output side (default C).
 
     Returns:
-        (image (S, S, 3) uint8, rotation (3, 3) float64) -- the rotation
+        (image (size, size, 3) uint8, rotation (3, 3) float64) -- the rotation
         changes only with the in-plane augmentation.
     """
     if image.ndim != 3 or image.shape[-1] != 3 or image.dtype != np.uint8:
         raise ValueError(f"image: expected (S,S,3) uint8, got {image.shape} {image.dtype}")
     rotation = np.asarray(rotation, dtype=np.float64)
+    size = image.shape[0] if size is None else int(size)
     if not cfg.enabled:
-        return image, rotation
+        return np.ascontiguousarray(centre_crop(image, size)), rotation
     # Draw every scalar up front, in a fixed order, so switches do not shift the stream.
     u = rng.uniform(size=9)
-    angle = (2 * u[0] - 1) * cfg.inplane_deg
+    angle = float(np.clip(cfg.inplane_deg * ndtri(np.clip(u[0], 1e-12, 1 - 1e-12)), -cfg.inplane_max,
+                          cfg.inplane_max))
     hue = (2 * u[1] - 1) * cfg.hue_deg
     sat = 1 + (2 * u[2] - 1) * cfg.sat
     val = 1 + (2 * u[3] - 1) * cfg.val
@@ -154,10 +208,14 @@ def augment_image(image: np.ndarray, rotation: np.ndarray, rng: np.random.Genera
     occl_rng = np.random.default_rng(rng.integers(2 ** 63))
     noise_rng = np.random.default_rng(rng.integers(2 ** 63))
 
-    out = image
     if cfg.inplane and do_inplane and angle != 0.0:
-        out = rotate_inplane(out, angle)
+        rot_img, rot_mask = rotate_inplane(image, angle, mask)
+        if not rot_mask.any():  # nothing visible to re-take a box from: whole rotated view
+            rot_mask = rotate_inplane(image, angle, None)[1]
+        out = box_crop(rot_img, rot_mask, size)
         rotation = inplane_rotate_label(rotation, angle)
+    else:
+        out = centre_crop(image, size)
     if cfg.occlusion and do_occl:
         out = occlude(out, occl_rng, cfg.occlusion_min, cfg.occlusion_max)
     if cfg.hsv:
@@ -171,10 +229,15 @@ def augment_image(image: np.ndarray, rotation: np.ndarray, rng: np.random.Genera
 
 
 def augment_batch(images: np.ndarray, rotations: np.ndarray, rng: np.random.Generator,
-                  cfg: AugmentConfig) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`augment_image` over (B, S, S, 3) uint8 and (B, 3, 3); returns new arrays."""
-    out_img = np.empty_like(np.asarray(images))
+                  cfg: AugmentConfig, masks: np.ndarray | None = None,
+                  size: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`augment_image` over (B, C, C, 3) uint8, (B, 3, 3) and optional (B, C, C) masks;
+    returns new arrays (B, size, size, 3) and (B, 3, 3)."""
+    images = np.asarray(images)
+    size = images.shape[1] if size is None else int(size)
+    out_img = np.empty((len(images), size, size, 3), dtype=np.uint8)
     out_rot = np.empty((len(images), 3, 3), dtype=np.float64)
     for i in range(len(images)):
-        out_img[i], out_rot[i] = augment_image(np.asarray(images[i]), rotations[i], rng, cfg)
+        out_img[i], out_rot[i] = augment_image(images[i], rotations[i], rng, cfg,
+                                               None if masks is None else np.asarray(masks[i]), size)
     return out_img, out_rot

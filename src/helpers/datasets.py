@@ -32,12 +32,12 @@ from tqdm.auto import tqdm
 from .fileio import atomic_save_npy, atomic_write_json, output_errors, preallocate, read_json, stable_hash
 from .manifest import Manifest, load_manifest, verify_file
 from .paths import cache_dir
-from .render import QueryStyle, RenderConfig, config_dict
+from .render import QueryStyle, RenderConfig, config_dict, output_side
 from .rotations import haar_uniform
 from .views import ObjectViews
 
 #: Bump when rendering code changes in a way that alters pixels.
-RENDER_VERSION = 1
+RENDER_VERSION = 3
 KINDS = ("reference", "query")
 
 
@@ -71,6 +71,10 @@ class ViewSetSpec:
             raise ValueError(f"ViewSetSpec.n must be a positive int, got {self.n!r}")
         if self.background_split not in ("train", "test"):
             raise ValueError(f"ViewSetSpec.background_split must be 'train' or 'test', got {self.background_split!r}")
+
+    def side(self) -> int:
+        """Side of the stored images, pixels (queries may keep context around the crop)."""
+        return output_side(self.render, self.style) if self.kind == "query" else self.render.size
 
     def rotations(self) -> np.ndarray:
         """(n, 3, 3) rotations to render (before any in-plane rotation of queries)."""
@@ -114,10 +118,10 @@ def _worker_init(manifest_path: str, lp_threads: int | None) -> None:
     _W["backgrounds"] = {}
 
 
-def _backgrounds(manifest: Manifest, split: str) -> list[np.ndarray]:
+def _backgrounds(manifest: Manifest, split: str) -> dict[str, np.ndarray]:
     bgs = _W.setdefault("backgrounds", {})
     if split not in bgs:
-        out = []
+        out = {}
         for b in manifest.backgrounds:
             if b.split != split:
                 continue
@@ -125,7 +129,7 @@ def _backgrounds(manifest: Manifest, split: str) -> list[np.ndarray]:
             img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
                 raise ValueError(f"background {b.name!r}: {p} is not a readable image")
-            out.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+            out[b.name] = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
         if not out:
             raise ValueError(f"{manifest.path}: no backgrounds with split {split!r}")
         bgs[split] = out
@@ -144,7 +148,7 @@ def _render_chunk(spec: ViewSetSpec, out_dir: str, chunk_idx: int) -> int:
     obj = objs[spec.object]
     R = spec.rotations()
     lo, hi = chunk_idx * CHUNK, min(spec.n, (chunk_idx + 1) * CHUNK)
-    S = spec.render.size
+    S = spec.side()
     imgs = np.zeros((hi - lo, S, S, 3), np.uint8)
     masks = np.zeros((hi - lo, S, S), bool)
     rots = np.zeros((hi - lo, 3, 3), np.float32)
@@ -182,8 +186,8 @@ def _load_complete(d: Path, spec: ViewSetSpec, manifest: Manifest, mmap: bool) -
     images = np.load(d / "images.npy", mmap_mode=mode)
     rots = np.load(d / "rotations.npy")
     masks = np.load(d / "masks.npy", mmap_mode=mode)
-    if images.shape != (spec.n, spec.render.size, spec.render.size, 3):
-        raise ValueError(f"{d}/images.npy: expected shape {(spec.n, spec.render.size, spec.render.size, 3)}, "
+    if images.shape != (spec.n, spec.side(), spec.side(), 3):
+        raise ValueError(f"{d}/images.npy: expected shape {(spec.n, spec.side(), spec.side(), 3)}, "
                          f"got {images.shape}; delete {d} to re-render")
     entry = manifest.object(spec.object)
     sym = np.eye(3)[None]
@@ -193,7 +197,7 @@ def _load_complete(d: Path, spec: ViewSetSpec, manifest: Manifest, mmap: bool) -
 
 
 def _consolidate(d: Path, spec: ViewSetSpec) -> None:
-    S = spec.render.size
+    S = spec.side()
     tmp = d / ".images.npy.tmp"
     with output_errors(tmp, spec.n * S * S * 3):
         imgs = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(spec.n, S, S, 3))

@@ -30,7 +30,8 @@ def data_config(P: dict[str, Any]) -> DataConfig:
     """DataConfig from notebook parameters (names shared by every notebook)."""
     return DataConfig(image_size=P["image_size"], render_size=P["render_size"], n_references=P["n_references"],
                       n_train_queries=P["n_train_queries"], n_val_queries=P["n_val_queries"],
-                      n_test_queries=P["n_test_queries"], seed=P["seed"], workers=P["workers"],
+                      n_test_queries=P["n_test_queries"], query_style=P["query_style"],
+                      train_context=P["train_context"], seed=P["seed"], workers=P["workers"],
                       cache_dir=P["cache_dir"])
 
 
@@ -48,6 +49,8 @@ def train_config(P: dict[str, Any], fusion: str | None = None, scales: str | Non
                      norm_window=P["norm_window"])
     return TrainConfig(epochs=epochs or P["epochs"], steps_per_epoch=P["steps_per_epoch"] or None,
                        batch_size=P["batch_size"], lr=P["lr"], lr_milestones=tuple(P["lr_milestones"]),
+                       lr_schedule=P["lr_schedule"], warmup_steps=P["warmup_steps"], clean_steps=P["clean_steps"],
+                       random_ref=P["random_ref"],
                        weighted_loss=P["weighted_loss"] if weighted_loss is None else weighted_loss,
                        seed=P["seed"], device=P["device"], occlusion=P["train_occlusion"], augment=AugmentConfig(),
                        val_every=P["val_every"], model=mc)

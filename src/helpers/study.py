@@ -22,7 +22,7 @@ from .fileio import atomic_write_json, read_json, stable_hash
 from .manifest import Manifest, load_manifest
 from .metrics import Record, per_query_table, summarise_queries
 from .paths import cache_dir
-from .render import QueryStyle, RenderConfig
+from .render import RenderConfig, query_style
 from .retrieval import ReferenceBank, model_scorer, search_all
 from .views import ObjectViews
 
@@ -41,6 +41,11 @@ class DataConfig:
         n_test_queries: test queries per object (test background photos).
         occlusion_fraction: (min, max) silhouette fraction hidden in the occluded
             (LM-O-like) test set, where every query is occluded.
+        query_style: ``"linemod"`` (default benchmark: tabletop scenes from the upper
+            hemisphere, see :mod:`helpers.tabletop`) or ``"hard"`` (any rotation over
+            full-frame photographs, in-plane rotated crops).
+        train_context: stored side / crop side of TRAINING queries (> 1 keeps real
+            surroundings for the in-plane augmentation, which rotates the whole view).
         seed: base seed.
         workers: rendering processes.
         cache_dir: cache root ("" = default).
@@ -53,9 +58,16 @@ class DataConfig:
     n_val_queries: int = 4
     n_test_queries: int = 4
     occlusion_fraction: tuple[float, float] = (0.2, 0.5)
+    query_style: str = "linemod"
+    train_context: float = 1.5
     seed: int = 0
     workers: int = 2
     cache_dir: str = ""
+
+    def __post_init__(self) -> None:
+        query_style(self.query_style)  # names the bad value: "query style must be one of ..."
+        if not 1.0 <= float(self.train_context) <= 2.0:
+            raise ValueError(f"train_context: expected a crop-side multiple in [1, 2], got {self.train_context!r}")
 
     def render_config(self) -> RenderConfig:
         return RenderConfig(size=self.image_size, render_size=self.render_size)
@@ -72,6 +84,7 @@ class StudyData:
     val_q: dict[str, ObjectViews] = field(default_factory=dict)
     test_q: dict[str, ObjectViews] = field(default_factory=dict)
     occluded_q: dict[str, ObjectViews] = field(default_factory=dict)
+    clean_q: dict[str, ObjectViews] = field(default_factory=dict)
 
     def key(self, name: str, kind: str = "refs") -> str:
         return getattr(self, kind)[name].meta["key"]
@@ -88,14 +101,17 @@ def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bo
     names = objects or m.object_names()
     bench = set(m.object_names("train"))
     rc = cfg.render_config()
-    plain = QueryStyle()
-    occ = QueryStyle(occlusion=1.0, occlusion_fraction=tuple(cfg.occlusion_fraction))
+    plain = query_style(cfg.query_style)
+    train = query_style(cfg.query_style, context=cfg.train_context)
+    occ = query_style(cfg.query_style, occlusion=1.0, occlusion_fraction=tuple(cfg.occlusion_fraction))
     plan: list[tuple[str, str, ViewSetSpec]] = []
     for n in names:
         plan.append(("refs", n, ViewSetSpec(n, "reference", cfg.n_references, cfg.seed, rc)))
         if n in bench:
-            plan.append(("train_q", n, ViewSetSpec(n, "query", cfg.n_train_queries, cfg.seed, rc, plain, "train")))
+            plan.append(("train_q", n, ViewSetSpec(n, "query", cfg.n_train_queries, cfg.seed, rc, train, "train")))
             plan.append(("val_q", n, ViewSetSpec(n, "query", cfg.n_val_queries, cfg.seed + 1, rc, plain, "train")))
+            # Clean (reference-style) views at other rotations, for the clean-to-real-like curriculum.
+            plan.append(("clean_q", n, ViewSetSpec(n, "reference", cfg.n_train_queries, cfg.seed + 1000, rc)))
         plan.append(("test_q", n, ViewSetSpec(n, "query", cfg.n_test_queries, cfg.seed + 2, rc, plain, "test")))
         if occluded:
             plan.append(("occluded_q", n, ViewSetSpec(n, "query", cfg.n_test_queries, cfg.seed + 3, rc, occ, "test")))
@@ -135,16 +151,19 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
     missing = [n for n in seen if n not in data.train_q]
     if missing:
         raise ValueError(f"train_or_load: no training queries rendered for {missing}; prepare_data with them")
+    curriculum = bool(getattr(train_cfg, "clean_steps", 0))
     key = stable_hash({"split": split, "train": _train_key(train_cfg),
                        "refs": [data.key(n) for n in seen], "train_q": [data.key(n, "train_q") for n in seen],
-                       "val_q": [data.key(n, "val_q") for n in seen], "val_refs": val_refs_per_object})
+                       "val_q": [data.key(n, "val_q") for n in seen], "val_refs": val_refs_per_object,
+                       **({"clean_q": [data.key(n, "clean_q") for n in seen]} if curriculum else {})})
     run = cache_dir(data.cfg.cache_dir or None) / "runs" / f"split{split}-{key}"
     done = run / "done.json"
     if not done.exists():
         t0 = time.perf_counter()
         res = train(train_cfg, {n: data.refs[n] for n in seen}, {n: data.train_q[n] for n in seen},
                     {n: _val_refs(data.refs[n], val_refs_per_object) for n in seen},
-                    {n: data.val_q[n] for n in seen}, run, resume=True)
+                    {n: data.val_q[n] for n in seen}, run, resume=True,
+                    clean_queries={n: data.clean_q[n] for n in seen} if curriculum else None)
         atomic_write_json(done, {"split": split, "seen": seen, "seconds_this_session": time.perf_counter() - t0,
                                  "best": str(res.best_path), "train_images_per_s": res.train_images_per_s})
     info = read_json(done)

@@ -3,7 +3,8 @@
 One step: B training queries (over all training objects) are augmented; each
 gets its positive (the reference of its object with the nearest rotation,
 found *after* augmentation since in-plane rotation changes the label) and one
-random reference of a random training object. The B queries and 2B
+random reference of its OWN object (the authors' batch; ``random_ref="any"``
+draws it from a random training object instead). The B queries and 2B
 references are encoded together, scored into a (B, 2B) matrix and trained
 with the (weighted) infoNCE of :mod:`helpers.losses`.
 
@@ -38,6 +39,8 @@ from .views import ObjectViews
 
 ROT_THRESHOLD_DEG = 30.0
 SELECT_ON = ("mean_acc", "rot_acc")
+RANDOM_REF = ("own", "any")
+LR_SCHEDULES = ("step", "cosine")
 
 # Fields that may change between an interrupted run and its resumption
 # without changing the trajectory of the weights.
@@ -54,7 +57,18 @@ class TrainConfig:
             training queries, ceil(N / batch_size).
         batch_size: queries per step (each adds 2 references to encode).
         lr, lr_milestones, lr_gamma: Adam learning rate, divided by
-            1/lr_gamma at each milestone epoch (MultiStepLR).
+            1/lr_gamma at each milestone epoch (``lr_schedule="step"``, the paper's).
+        lr_schedule: ``"step"`` (milestones) or ``"cosine"`` (cosine decay to 0
+            over all steps, milestones ignored).
+        warmup_steps: linear learning-rate warm-up from lr/warmup_steps over this
+            many optimiser steps (0: none), before either schedule.
+        clean_steps: curriculum from clean to real-like queries: at optimiser step t
+            each query is replaced, with probability max(0, 1 - t / clean_steps),
+            by a clean render (reference style, object on black) of its object at
+            another rotation (``clean_queries`` of :func:`train`); 0 = no curriculum.
+        random_ref: where each query's extra random reference comes from:
+            ``"own"`` (its own object, as the authors' code) or ``"any"``
+            (a random training object).
         tau: infoNCE temperature.
         weighted_loss: geodesic weights (True) or plain infoNCE (False).
         seed: seeds torch (init, dropout) and the numpy Generator (sampling,
@@ -80,6 +94,10 @@ class TrainConfig:
     lr: float = 1e-4
     lr_milestones: tuple = (50, 150)
     lr_gamma: float = 0.1
+    lr_schedule: str = "step"
+    warmup_steps: int = 0
+    clean_steps: int = 0
+    random_ref: str = "own"
     tau: float = 0.1
     weighted_loss: bool = True
     seed: int = 0
@@ -126,6 +144,14 @@ class TrainConfig:
                 raise ValueError(f"TrainConfig.{name}: expected a bool, got {getattr(self, name)!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ValueError(f"TrainConfig.seed: expected a non-negative int, got {self.seed!r}")
+        if self.random_ref not in RANDOM_REF:
+            raise ValueError(f"TrainConfig.random_ref: expected one of {RANDOM_REF}, got {self.random_ref!r}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"TrainConfig.lr_schedule: expected one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        for name in ("warmup_steps", "clean_steps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+                raise ValueError(f"TrainConfig.{name}: expected an int >= 0, got {v!r}")
         if self.select_on not in SELECT_ON:
             raise ValueError(f"TrainConfig.select_on: expected one of {SELECT_ON}, got {self.select_on!r}")
         if not isinstance(self.device, str):
@@ -183,13 +209,18 @@ def _atomic_torch_save(obj, path: Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def _check_views(views: dict[str, ObjectViews], what: str, size: int) -> None:
+def _check_views(views: dict[str, ObjectViews], what: str, size: int, context_ok: bool = False) -> None:
+    """Images must be size x size (or, for training queries with ``context_ok``, square and
+    larger: the crop with context around it)."""
     for name, v in views.items():
         if not isinstance(v, ObjectViews):
             raise ValueError(f"{what}[{name!r}]: expected ObjectViews, got {type(v).__name__}")
-        if len(v) and v.images.shape[1:3] != (size, size):
-            raise ValueError(f"{what}[{name!r}]: images are {v.images.shape[1]}x{v.images.shape[2]}, "
-                             f"model expects {size}x{size}")
+        if not len(v):
+            continue
+        h, w = v.images.shape[1:3]
+        if (h, w) != (size, size) and not (context_ok and h == w and h > size):
+            raise ValueError(f"{what}[{name!r}]: images are {h}x{w}, model expects {size}x{size}"
+                             f"{' (or a larger square with context)' if context_ok else ''}")
 
 
 def _order_stream(rng: np.random.Generator, n: int, count: int) -> np.ndarray:
@@ -272,8 +303,12 @@ class _Batcher:
     """Builds training batches: augmented queries, positives and random references."""
 
     def __init__(self, names: list[str], refs: dict[str, ObjectViews], queries: dict[str, ObjectViews],
-                 aug: AugmentConfig) -> None:
+                 aug: AugmentConfig, size: int, random_ref: str = "own",
+                 clean: dict[str, ObjectViews] | None = None) -> None:
         self.names = names
+        self.clean = [None if clean is None else clean.get(n) for n in names]
+        self.size = size
+        self.random_ref = random_ref
         self.refs = [refs[n] for n in names]
         self.queries = [queries.get(n) for n in names]
         self.aug = aug
@@ -289,19 +324,43 @@ class _Batcher:
     def __len__(self) -> int:
         return len(self.q_obj)
 
-    def make(self, picks: np.ndarray, rng: np.random.Generator):
+    def _view(self, o: int, i: int, clean: bool, u: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(image, rotation, mask) of query ``i`` of object ``o``, or of a clean view of it
+        (index drawn from ``u`` in [0, 1)), cropped to ``size`` if the clean set has no context."""
+        v = self.clean[o] if clean else self.queries[o]
+        if clean:
+            i = int(u * len(v))
+        img, mask = v.images[i], None if v.masks is None else v.masks[i]
+        if clean and img.shape[0] != self.queries[o].images.shape[1]:
+            # Clean views are stored as crops (no context): pad with black to the queries' side.
+            pad = (self.queries[o].images.shape[1] - img.shape[0]) // 2
+            img = np.pad(img, ((pad, pad), (pad, pad), (0, 0)))
+            mask = None if mask is None else np.pad(mask, pad)
+        return img, np.asarray(v.rotations[i], np.float64), mask
+
+    def make(self, picks: np.ndarray, rng: np.random.Generator, p_clean: float = 0.0):
         """Batch for query indices ``picks`` (B,) -> (images (3B,S,S,3) uint8,
-        query objects (B,), query rotations (B,3,3), reference objects (2B,), reference rotations (2B,3,3))."""
+        query objects (B,), query rotations (B,3,3), reference objects (2B,), reference rotations (2B,3,3)).
+        With probability ``p_clean`` a query is swapped for a clean view of its object (curriculum)."""
         q_obj, q_idx = self.q_obj[picks], self.q_idx[picks]
-        q_img = np.stack([self.queries[o].images[i] for o, i in zip(q_obj, q_idx)])
-        q_rot = np.stack([np.asarray(self.queries[o].rotations[i], np.float64) for o, i in zip(q_obj, q_idx)])
-        q_img, q_rot = augment_batch(q_img, q_rot, rng, self.aug)
+        if p_clean > 0:  # drawn only during the curriculum, so runs without one keep their stream
+            u = rng.random((2, len(picks)))
+            use_clean = (u[0] < p_clean) & np.array([self.clean[o] is not None for o in q_obj])
+        else:
+            u, use_clean = np.zeros((2, len(picks))), np.zeros(len(picks), bool)
+        views = [self._view(o, i, c, uu) for o, i, c, uu in zip(q_obj, q_idx, use_clean, u[1])]
+        q_img = np.stack([v[0] for v in views])
+        q_rot = np.stack([v[1] for v in views])
+        q_mask = None if any(v[2] is None for v in views) else np.stack([v[2] for v in views])
+        q_img, q_rot = augment_batch(q_img, q_rot, rng, self.aug, q_mask, self.size)
         # Positive: nearest reference rotation of the same object, after augmentation.
         pos_idx = np.empty(len(picks), dtype=np.int64)
         for o in np.unique(q_obj):
             sel = q_obj == o
             pos_idx[sel] = nearest(q_rot[sel], self.refs[o].rotations)[0]
         rnd_obj = rng.integers(0, len(self.refs), size=len(picks))
+        if self.random_ref == "own":  # drawn either way, so both switches consume the same stream
+            rnd_obj = q_obj
         rnd_idx = np.floor(rng.random(len(picks)) * self.n_refs[rnd_obj]).astype(np.int64)
         r_obj = np.concatenate([q_obj, rnd_obj])
         r_idx = np.concatenate([pos_idx, rnd_idx])
@@ -331,6 +390,22 @@ def train_step(model: OrientationNet, optimizer: torch.optim.Optimizer, images: 
     return float(loss.detach())
 
 
+def lr_factor(cfg: TrainConfig, steps_per_epoch: int):
+    """Multiplier of ``cfg.lr`` as a function of the optimiser step (0-based): linear
+    warm-up over ``warmup_steps``, then milestones (per epoch) or a cosine to 0."""
+    total = max(1, cfg.epochs * steps_per_epoch)
+    milestones = list(cfg.lr_milestones)
+
+    def f(step: int) -> float:
+        warm = min(1.0, (step + 1) / cfg.warmup_steps) if cfg.warmup_steps else 1.0
+        if cfg.lr_schedule == "cosine":
+            return warm * 0.5 * (1.0 + math.cos(math.pi * min(step, total) / total))
+        epoch = step // steps_per_epoch
+        return warm * cfg.lr_gamma ** sum(epoch >= m for m in milestones)
+
+    return f
+
+
 def _rng_state() -> dict:
     state = {"torch": torch.get_rng_state()}
     if torch.cuda.is_available():
@@ -348,7 +423,7 @@ def _set_rng_state(state: dict) -> None:
 
 def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: dict[str, ObjectViews],
           val_refs: dict[str, ObjectViews], val_queries: dict[str, ObjectViews], out_dir: Path,
-          resume: bool = True) -> TrainResult:
+          resume: bool = True, clean_queries: dict[str, ObjectViews] | None = None) -> TrainResult:
     """Train (or resume training) and return checkpoint paths and history.
 
     Args:
@@ -363,6 +438,8 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
         out_dir: where checkpoints and history go (created).
         resume: continue from ``out_dir/last.pt`` when it exists; the result
             is identical to an uninterrupted run with the same seed (CPU).
+        clean_queries: name -> clean renders (reference style) of training objects at
+            rotations other than the references', for the ``clean_steps`` curriculum.
 
     History entries: epoch (1-based), global_step, lr, train_loss, seconds,
     images_per_s, val (None or validate() summary without per_object).
@@ -383,7 +460,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
     size = cfg.model.image_size
     for views, what in ((train_refs, "train_refs"), (train_queries, "train_queries"),
                         (val_refs, "val_refs"), (val_queries, "val_queries")):
-        _check_views(views, what, size)
+        _check_views(views, what, size, context_ok=what == "train_queries")
     if any(len(train_refs[n]) == 0 for n in names):
         raise ValueError("train_refs: every training object needs at least one reference")
     do_val = any(len(v) for v in val_queries.values())
@@ -394,7 +471,9 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
         torch.set_num_threads(cfg.num_threads)
     try:
         aug = replace(cfg.augment, occlusion=cfg.augment.occlusion or cfg.occlusion)
-        batcher = _Batcher(names, train_refs, train_queries, aug)
+        if cfg.clean_steps and not clean_queries:
+            raise ValueError("TrainConfig.clean_steps > 0 needs clean_queries (clean renders of the training objects)")
+        batcher = _Batcher(names, train_refs, train_queries, aug, size, cfg.random_ref, clean_queries)
         if len(batcher) == 0:
             raise ValueError("train_queries: expected at least one training query")
         steps = cfg.steps_per_epoch or math.ceil(len(batcher) / cfg.batch_size)
@@ -403,7 +482,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
         rng = np.random.default_rng(cfg.seed)
         model = OrientationNet(cfg.model).to(device)
         optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-        scheduler = torch.optim.lr_scheduler.MultiStepLR(optimizer, list(cfg.lr_milestones), cfg.lr_gamma)
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_factor(cfg, steps))
         history: list[dict] = []
         start_epoch, global_step = 0, 0
         best_metric, best_epoch = -math.inf, None
@@ -437,16 +516,17 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
                        leave=False)
             for step in bar:
                 picks = order[step * cfg.batch_size:(step + 1) * cfg.batch_size]
-                imgs, q_obj, q_rot, r_obj, r_rot = batcher.make(picks, rng)
+                p_clean = max(0.0, 1.0 - global_step / cfg.clean_steps) if cfg.clean_steps else 0.0
+                imgs, q_obj, q_rot, r_obj, r_rot = batcher.make(picks, rng, p_clean)
                 loss = train_step(model, optimizer, images_to_tensor(imgs).to(device),
                                   q_obj, q_rot, r_obj, r_rot, cfg.tau, cfg.weighted_loss)
                 if not math.isfinite(loss):
                     raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}, step {step}")
                 losses.append(loss)
+                scheduler.step()
                 global_step += 1
                 bar.set_postfix(loss=f"{loss:.4f}")
             seconds = time.perf_counter() - t0
-            scheduler.step()
             speed = steps * 3 * cfg.batch_size / seconds
             speeds.append(speed)
 
@@ -492,25 +572,28 @@ def load_model(path: str | Path, device: str | torch.device = "auto") -> tuple[O
 
 
 def plot_history(history: list[dict], path: str | Path) -> Path:
-    """Save a PNG: training loss per epoch (left), validation accuracies in % (right)."""
+    """Save the learning curve as a PNG: training loss vs optimiser steps (left), validation
+    accuracies (seen objects, %) vs steps (middle) and vs cumulative training minutes (right)."""
     # Figure + Agg canvas directly: no global pyplot/backend state is touched.
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(9, 3.5))
+    fig = Figure(figsize=(12, 3.5))
     FigureCanvasAgg(fig)
-    ax1, ax2 = fig.subplots(1, 2)
-    ep = [h["epoch"] for h in history]
-    ax1.plot(ep, [h["train_loss"] for h in history], marker=".")
-    ax1.set(xlabel="epoch", ylabel="train loss", title="training loss")
-    val = [(h["epoch"], h["val"]) for h in history if h.get("val")]
-    if val:
-        ax2.plot([e for e, _ in val], [100 * v["class_acc"] for _, v in val], marker=".", label="class acc")
-        ax2.plot([e for e, _ in val], [100 * v["rot_acc"] for _, v in val], marker=".",
-                 label=f"rot acc (<{ROT_THRESHOLD_DEG:.0f} deg)")
-        ax2.legend()
-    ax2.set(xlabel="epoch", ylabel="%", title="validation (seen objects)")
-    for ax in (ax1, ax2):
+    ax1, ax2, ax3 = fig.subplots(1, 3)
+    steps = [h.get("global_step", h["epoch"]) for h in history]
+    minutes = np.cumsum([h.get("seconds", 0.0) for h in history]) / 60.0
+    ax1.plot(steps, [h["train_loss"] for h in history], marker=".")
+    ax1.set(xlabel="optimiser steps", ylabel="train loss (mean over the epoch)", title="training loss")
+    val = [(st, mi, h["val"]) for st, mi, h in zip(steps, minutes, history) if h.get("val")]
+    for ax, xi, xl in ((ax2, 0, "optimiser steps"), (ax3, 1, "training minutes (CPU wall, validation excluded)")):
+        if val:
+            x = [v[xi] for v in val]
+            ax.plot(x, [100 * v[2]["class_acc"] for v in val], marker=".", label="Class. Acc.")
+            ax.plot(x, [100 * v[2]["rot_acc"] for v in val], marker=".", label=f"Rota. Acc. (<{ROT_THRESHOLD_DEG:.0f} deg)")
+            ax.legend(fontsize=8)
+        ax.set(xlabel=xl, ylabel="%", title="validation: held-out views of SEEN objects")
+    for ax in (ax1, ax2, ax3):
         ax.grid(alpha=0.3)
     fig.tight_layout()
     path = Path(path)

@@ -1,0 +1,84 @@
+"""claims.json: records computed from per-query files, with object-weighted bootstrap intervals."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from helpers.claims import accuracy_ci, build_claims, diff_verdict, paired_diff_ci, write_claims
+
+KEYS = {"id", "claim", "paper", "ours", "ci95", "verdict"}
+
+
+def _pq(rng, split_objects: dict[int, list[str]], p_ok: dict[str, float], n: int = 60, part: str = "unseen"):
+    rows = []
+    for s, objs in split_objects.items():
+        for o in objs:
+            ok = rng.random(n) < p_ok[o]
+            for i in range(n):
+                rows.append({"split": s, "part": part, "obj": o, "pred_obj": o, "query_id": f"{o}:{i}",
+                             "class_ok": True, "err_deg": 5.0 if ok[i] else 90.0, "rot_ok": bool(ok[i])})
+    return pd.DataFrame(rows)
+
+
+def test_accuracy_is_mean_over_splits_of_mean_over_objects():
+    # Split 1: two objects at 100 % and 0 %; split 2: one object at 100 %. Object weights
+    # 1/4, 1/4, 1/2 -> 75 %, whatever the query counts.
+    df = pd.DataFrame({"split": [1] * 3 + [1] * 5 + [2] * 2, "obj": ["a"] * 3 + ["b"] * 5 + ["c"] * 2,
+                       "rot_ok": [1] * 3 + [0] * 5 + [1] * 2})
+    v, ci = accuracy_ci(df)
+    assert v == pytest.approx(75.0)
+    assert ci == pytest.approx([75.0, 75.0])  # no within-object variance: no spread
+
+
+def test_paired_difference_detects_a_real_gap_and_not_a_fake_one():
+    rng = np.random.default_rng(0)
+    objs = {1: ["a", "b"], 2: ["c", "d"]}
+    base = _pq(rng, objs, {o: 0.3 for o in "abcd"}, n=120)
+    better = base.copy()
+    flip = (~better["rot_ok"]) & (np.random.default_rng(1).random(len(better)) < 0.5)
+    better.loc[flip, "rot_ok"] = True  # about +35 points on the same queries
+    d, ci = paired_diff_ci(base, better)
+    assert d > 25 and ci[0] > 0 and diff_verdict(ci) == "holds"
+    d0, ci0 = paired_diff_ci(base, base)
+    assert d0 == 0 and ci0 == [0.0, 0.0] and diff_verdict(ci0) == "within noise"
+    with pytest.raises(ValueError, match="different queries"):
+        paired_diff_ci(base, better.iloc[:-3])
+
+
+def test_claims_file_from_a_report_folder(tmp_path):
+    rng = np.random.default_rng(2)
+    splits = {1: ["a", "b"], 2: ["c"], 3: ["d", "e"]}
+    p = {o: 0.6 for o in "abcde"}
+    ev = tmp_path / "03_evaluate"
+    ev.mkdir()
+    ours = pd.concat([_pq(rng, splits, p, part="unseen"), _pq(rng, splits, {o: 0.8 for o in "abcde"}, part="seen"),
+                      _pq(rng, splits, {o: 0.3 for o in "abcde"}, part="occluded")])
+    ours.to_csv(ev / "per_query_ours.csv", index=False)
+    hog = _pq(rng, splits, {o: 0.3 for o in "abcde"})
+    hog.to_csv(ev / "per_query_hog.csv", index=False)
+    glob_ = _pq(rng, {1: ["a", "b"]}, {o: 0.5 for o in "ab"})
+    glob_.to_csv(ev / "per_query_global.csv", index=False)
+    fusion = tmp_path / "05_ablation_fusion"
+    fusion.mkdir()
+    (fusion / "metrics.json").write_text(json.dumps({"table": [], "trend": {
+        "adaptive_beats_avg": {"holds": True, "compare": "adaptive vs avg", "diff_pts": 4.0, "ci": [-1.0, 9.0],
+                               "verdict": "within noise"}}}))
+    path = write_claims(tmp_path)
+    claims = json.loads(path.read_text())
+    ids = {c["id"]: c for c in claims}
+    for c in claims:
+        assert set(c) == KEYS
+    for k in ("hog_unseen_rot_acc", "unseen_rot_acc", "unseen_class_acc", "seen_rot_acc",
+              "occluded_unseen_rot_acc", "ours_minus_hog", "ours_minus_global", "fusion:adaptive_beats_avg"):
+        assert k in ids, k
+    u = ids["unseen_rot_acc"]
+    assert u["ci95"][0] <= u["ours"] <= u["ci95"][1] and 45 < u["ours"] < 75
+    assert ids["unseen_class_acc"]["ours"] == 100.0
+    assert ids["hog_unseen_rot_acc"]["verdict"] == "calibrated"  # ~30 %, inside 25-40
+    assert ids["ours_minus_hog"]["verdict"] == "holds" and ids["ours_minus_hog"]["ci95"][0] > 0
+    assert "#1" in ids["ours_minus_global"]["claim"]  # Global ran on split 1 only
+    assert ids["fusion:adaptive_beats_avg"]["paper"] == pytest.approx(89.55 - 80.9)
+    assert ids["fusion:adaptive_beats_avg"]["verdict"] == "within noise"
+    assert build_claims(tmp_path / "missing") == []
