@@ -39,6 +39,9 @@ def test_report_states_noise_of_claims(tmp_path):
                                                 "trend": {"both_beats_neither": c, "order": chain},
                                                 "noise": "paired bootstrap"}))
     rep = build_report("y", root=tmp_path).read_text()
+    claims = json.loads((tmp_path / "y" / "claims.json").read_text())
+    assert {c["id"] for c in claims} == {"components:both_beats_neither", "components:order:b>a"}
+    assert "## Claims (`claims.json`)" in rep and "| `components:both_beats_neither` |" in rep
     assert "both beats neither: **holds** in the point estimate (b vs a: +3.0 pts, 95 % CI [-1.5, +7.2]): " \
            "**within noise**" in rep
     assert "order: **does not hold** in the point estimate (b vs a +3.0 [-1.5, +7.2]; b vs a -2.0" in rep

@@ -117,10 +117,7 @@ def sample_viewpoint(obj: ObjectMesh, rng: np.random.Generator, elevation_deg: t
     """Draw a resting pose, a yaw, a camera elevation/azimuth and a roll (all uniform)."""
     R_rest, prob = stable_poses(obj)
     k = int(rng.choice(len(prob), p=prob))
-    yaw = rng.uniform(0, 2 * math.pi)
-    c, s = math.cos(yaw), math.sin(yaw)
-    R_yaw = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-    R_m2w = R_yaw @ R_rest[k]
+    R_m2w = _rz(rng.uniform(0, 2 * math.pi)) @ R_rest[k]
     height = float(-(obj.mesh.vertices @ R_m2w.T)[:, 2].min())
     elev = float(rng.uniform(*elevation_deg))
     azim = float(rng.uniform(0, 360))
@@ -210,6 +207,7 @@ def pose4(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _rz(a: float) -> np.ndarray:
+    """Rotation (3, 3) by ``a`` radians about the world's up (z) axis."""
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
 
