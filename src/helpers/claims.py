@@ -48,17 +48,22 @@ def _groups(df: pd.DataFrame) -> tuple[list[np.ndarray], np.ndarray]:
     return idx, w.to_numpy()
 
 
-def accuracy_ci(df: pd.DataFrame, column: str = "rot_ok", seed: int = 0) -> tuple[float, list[float]]:
-    """Object-averaged accuracy (%) of a per-query table with ``split``, ``obj`` and a 0/1 column,
-    and its 95 % bootstrap interval (queries resampled within objects)."""
+def _bootstrap(df: pd.DataFrame, column: str, rng: np.random.Generator) -> tuple[float, np.ndarray]:
+    """Object-averaged accuracy (%) of ``column`` and its (N_BOOT,) bootstrap replicates (%)."""
     idx, w = _groups(df)
     x = df[column].astype(float).to_numpy()
     point = 100.0 * float(sum(wi * x[g].mean() for g, wi in zip(idx, w)))
-    rng = np.random.default_rng(seed)
     boots = np.zeros(N_BOOT)
     for g, wi in zip(idx, w):
         boots += wi * x[g][rng.integers(0, len(g), size=(N_BOOT, len(g)))].mean(axis=1)
-    lo, hi = np.quantile(100.0 * boots, [0.025, 0.975])
+    return point, 100.0 * boots
+
+
+def accuracy_ci(df: pd.DataFrame, column: str = "rot_ok", seed: int = 0) -> tuple[float, list[float]]:
+    """Object-averaged accuracy (%) of a per-query table with ``split``, ``obj`` and a 0/1 column,
+    and its 95 % bootstrap interval (queries resampled within objects)."""
+    point, boots = _bootstrap(df, column, np.random.default_rng(seed))
+    lo, hi = np.quantile(boots, [0.025, 0.975])
     return point, [float(lo), float(hi)]
 
 
@@ -79,17 +84,10 @@ def unpaired_diff_ci(a: pd.DataFrame, b: pd.DataFrame, column: str = "rot_ok", s
                      ) -> tuple[float, list[float]]:
     """``b - a`` in points for two different query sets, each resampled on its own."""
     rng = np.random.default_rng(seed)
-    out = []
-    for df in (a, b):
-        idx, w = _groups(df)
-        x = df[column].astype(float).to_numpy()
-        boots = np.zeros(N_BOOT)
-        for g, wi in zip(idx, w):
-            boots += wi * x[g][rng.integers(0, len(g), size=(N_BOOT, len(g)))].mean(axis=1)
-        out.append(100.0 * boots)
-    point = accuracy_ci(b, column)[0] - accuracy_ci(a, column)[0]
-    lo, hi = np.quantile(out[1] - out[0], [0.025, 0.975])
-    return point, [float(lo), float(hi)]
+    pa, ba = _bootstrap(a, column, rng)
+    pb, bb = _bootstrap(b, column, rng)
+    lo, hi = np.quantile(bb - ba, [0.025, 0.975])
+    return pb - pa, [float(lo), float(hi)]
 
 
 def diff_verdict(ci: list[float]) -> str:

@@ -394,6 +394,16 @@ def output_side(cfg: RenderConfig, style: QueryStyle) -> int:
     return int(round(cfg.size * style.context))
 
 
+def _jittered_box(mask: np.ndarray, cfg: RenderConfig, style: QueryStyle, rng: np.random.Generator
+                  ) -> tuple[float, float, float]:
+    """The mask's square box (centre x, y and side, pixels) shifted and scaled by the style's crop jitter."""
+    cx, cy, side = silhouette_box(mask)
+    cx += rng.uniform(-style.crop_shift, style.crop_shift) * side
+    cy += rng.uniform(-style.crop_shift, style.crop_shift) * side
+    side *= cfg.crop_pad * (1 + rng.uniform(-style.crop_scale, style.crop_scale))
+    return cx, cy, side
+
+
 def _sensor(img: np.ndarray, style: QueryStyle, rng: np.random.Generator) -> np.ndarray:
     """Blur and noise of a float image; uint8 out."""
     sigma = rng.uniform(0, style.blur_sigma)
@@ -425,10 +435,7 @@ def render_query(obj: ObjectMesh, R_m2c: np.ndarray, cfg: RenderConfig, style: Q
                               light_intensity=float(rng.uniform(*style.light_intensity)),
                               ambient=float(rng.uniform(*style.ambient)), color_scale=cs)
     mask = depth > 0
-    cx, cy, side = silhouette_box(mask)
-    cx += rng.uniform(-style.crop_shift, style.crop_shift) * side
-    cy += rng.uniform(-style.crop_shift, style.crop_shift) * side
-    side *= cfg.crop_pad * (1 + rng.uniform(-style.crop_scale, style.crop_scale))
+    cx, cy, side = _jittered_box(mask, cfg, style, rng)
     angle = float(rng.uniform(-style.inplane_deg, style.inplane_deg))
     S = output_side(cfg, style)
     M = crop_affine(cx, cy, side * style.context, S, angle)
@@ -454,10 +461,7 @@ def _render_tabletop_query(obj: ObjectMesh, cfg: RenderConfig, style: QueryStyle
     color, _, _, visible, vp = render_tabletop(obj, cfg, style, photos, rng)
     if not visible.any():
         raise ValueError(f"object {obj.name!r}: a tabletop view shows none of the object (clutter in front?)")
-    cx, cy, side = silhouette_box(visible)
-    cx += rng.uniform(-style.crop_shift, style.crop_shift) * side
-    cy += rng.uniform(-style.crop_shift, style.crop_shift) * side
-    side *= cfg.crop_pad * (1 + rng.uniform(-style.crop_scale, style.crop_scale))
+    cx, cy, side = _jittered_box(visible, cfg, style, rng)
     S = output_side(cfg, style)
     M = crop_affine(cx, cy, side * style.context, S)
     img = cv2.warpAffine(color, M, (S, S), flags=cv2.INTER_AREA, borderValue=0).astype(np.float32)
