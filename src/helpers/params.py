@@ -23,7 +23,7 @@ _KERNEL_NAMES = {"In", "Out", "get_ipython", "exit", "quit", "open"}
 
 
 class ParameterError(ValueError):
-    """A notebook parameter is unknown or has the wrong type."""
+    """A notebook parameter is unknown, has the wrong type or a value outside its domain."""
 
 
 def notebook_path(name: str) -> Path:
@@ -86,10 +86,15 @@ def check_parameters(notebook: str, namespace: dict[str, Any]) -> dict[str, Any]
     """Validate a kernel namespace against ``notebooks/<notebook>.ipynb``'s parameters cell.
 
     Returns {name: value} of the parameters. Raises ParameterError on a name
-    that is not a declared parameter or on a value of another type.
+    that is not a declared parameter, on a value of another type, or on a value
+    outside its domain (:func:`helpers.param_values.check_values`).
     """
+    from .param_values import check_values
+
     declared = declared_parameters(notebook_path(notebook))
-    return check_mapping(notebook, declared, {k: v for k, v in namespace.items() if _is_user_name(k, v)})
+    P = check_mapping(notebook, declared, {k: v for k, v in namespace.items() if _is_user_name(k, v)})
+    check_values(notebook, P)
+    return P
 
 
 def check_mapping(notebook: str, declared: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:

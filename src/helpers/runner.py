@@ -14,18 +14,23 @@ builds ``reports/<preset>/REPORT.md``.
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 import yaml
 
-from .fileio import atomic_write_json
+from .fileio import atomic_write_json, stable_hash
+from .param_values import check_values
 from .params import NOTEBOOK_DIR, ParameterError, check_mapping, declared_parameters
 from .paths import REPO_ROOT
 
 PRESET_DIR = REPO_ROOT / "presets"
 PRESETS = ("smoke", "quick", "paper")
+STATE_FILE = "runner_state.json"
 
 
 def notebooks() -> list[str]:
@@ -51,30 +56,76 @@ def preset_parameters(preset: str, notebook: str) -> dict:
         raise ParameterError(f"{f if f.exists() else 'preset ' + preset}: {e}") from None
 
 
-def run(preset: str, only: list[str] | None = None, html: bool = True, report: bool = True) -> Path:
-    """Run the notebooks of ``preset``; returns the report folder."""
+def run_key(params: dict) -> str:
+    """What makes a finished notebook reusable: its parameters and the code it ran, i.e. the
+    git revision plus any uncommitted change to src/, notebooks/, presets/ or the manifest
+    (reports/ is excluded: the runner itself writes there)."""
+    from .runinfo import git_revision
+
+    diff = ""
+    try:
+        diff = subprocess.run(["git", "diff", "HEAD", "--", "src", "notebooks", "presets", "data_manifest.yaml"],
+                              cwd=REPO_ROOT, capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return stable_hash({"params": params, "commit": git_revision().get("commit"),
+                        "diff": hashlib.sha256(diff.encode()).hexdigest()})
+
+
+def _read_state(path: Path) -> dict:
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return d if isinstance(d, dict) else {}
+
+
+def run(preset: str, only: list[str] | None = None, html: bool = True, report: bool = True,
+        restart: bool = False) -> Path:
+    """Run the notebooks of ``preset``; returns the report folder.
+
+    A notebook that finished in an earlier call (same parameters, same code) is skipped,
+    so an interrupted run resumes at the notebook it was in (``restart`` reruns all).
+    Inside a notebook, finished training runs and encoded features are reused from the
+    cache, so the interrupted notebook itself resumes from its last checkpoint."""
     import papermill as pm
 
     names = notebooks()
-    if only:
+    if only is not None:
+        if not only:
+            raise ParameterError(f"--only: name at least one notebook; available: {names}")
         unknown = sorted(set(only) - set(names))
         if unknown:
             raise ParameterError(f"--only: unknown notebook(s) {unknown}; available: {names}")
         names = [n for n in names if n in only]
     params = {n: preset_parameters(preset, n) for n in names}  # validate everything first
+    for n in names:  # values too (not only names and types), before any notebook starts
+        check_values(n, params[n])
     out = REPO_ROOT / "reports" / preset
     out.mkdir(parents=True, exist_ok=True)
-    timings = {}
+    state_path = out / STATE_FILE
+    state = {} if restart else _read_state(state_path)
+    timings = {k: v for k, v in _read_state(out / "timings.json").items() if k in state}
     for n in names:
+        key = run_key(params[n])
+        dst = out / f"{n}.ipynb"
+        if state.get(n, {}).get("key") == key and dst.exists():
+            print(f"[runner] {preset}: {n} finished earlier with the same parameters and code "
+                  f"({state[n]['seconds']:.0f} s); skipped (--restart reruns it)", flush=True)
+            timings[n] = state[n]["seconds"]
+            continue
+        state.pop(n, None)
+        atomic_write_json(state_path, state)
         t0 = time.perf_counter()
         print(f"[runner] {preset}: {n}", flush=True)
-        dst = out / f"{n}.ipynb"
         pm.execute_notebook(str(NOTEBOOK_DIR / f"{n}.ipynb"), str(dst), parameters=params[n],
                             cwd=str(NOTEBOOK_DIR), progress_bar=True, kernel_name="python3")
         if html:
             export_html(dst)
         timings[n] = time.perf_counter() - t0
+        state[n] = {"key": key, "seconds": timings[n]}
         atomic_write_json(out / "timings.json", timings)
+        atomic_write_json(state_path, state)
     if report:
         from .report import build_report
 
@@ -99,10 +150,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="*", help="notebook names to run (default: all)")
     ap.add_argument("--no-html", action="store_true")
     ap.add_argument("--no-report", action="store_true")
+    ap.add_argument("--restart", action="store_true",
+                    help="rerun every notebook (default: skip those finished earlier with the same parameters and code)")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
     try:
-        out = run(a.preset, a.only, html=not a.no_html, report=not a.no_report)
+        out = run(a.preset, a.only, html=not a.no_html, report=not a.no_report, restart=a.restart)
     except ParameterError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

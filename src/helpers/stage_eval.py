@@ -45,9 +45,16 @@ def evaluate_split(P: dict[str, Any], data: StudyData, split: int, model=None) -
     kw = search_kwargs(P)
     out = {"model": model, "bank": bank}
     out["unseen"] = evaluate(model, bank, {n: data.test_q[n] for n in unseen}, device=P["device"], **kw)
-    out["seen"] = evaluate(model, bank, {n: data.test_q[n] for n in seen}, device=P["device"], **kw)
-    out["occluded"] = evaluate(model, bank, {n: data.occluded_q[n] for n in unseen}, device=P["device"], **kw)
+    out["seen"] = evaluate(model, bank, {n: _first(data.test_q[n], P["seen_queries"]) for n in seen},
+                           device=P["device"], **kw)
+    out["occluded"] = evaluate(model, bank, {n: _first(data.occluded_q[n], P["occluded_queries"]) for n in unseen},
+                               device=P["device"], **kw)
     return out
+
+
+def _first(views, k: int):
+    """The first ``k`` views (0 = all): a smaller, still random, sample of a query set."""
+    return views if not k or k >= len(views) else views.subset(np.arange(k))
 
 
 def table1(results: dict[int, dict]) -> pd.DataFrame:

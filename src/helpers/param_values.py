@@ -1,0 +1,129 @@
+"""Value rules for notebook parameters, checked before any rendering or training.
+
+:mod:`helpers.params` checks names and types against each notebook's parameters
+cell; this module checks the *values* (``-p fusion adaptve``, ``-p epochs -1``)
+so that a bad value stops the run in the parameters-check cell, with a message
+naming the notebook, the parameter and what was expected, instead of minutes
+later inside training. The network and training settings are also passed
+through :class:`helpers.model.ModelConfig` and :class:`helpers.train.TrainConfig`,
+whose own checks then run at the same early point.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .params import ParameterError
+
+_SPLITS = (1, 2, 3)
+_LEVELS = ("32", "16", "13")
+
+# name -> minimum allowed integer value
+_MIN_INT = {
+    "image_size": 64, "render_size": 64, "n_references": 1, "n_train_queries": 1, "n_val_queries": 1,
+    "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 1, "fps_k": 1,
+    "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
+    "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
+    "occluded_queries": 0, "eval_refs": 0,
+}
+_CHOICES = {
+    "lr_schedule": ("step", "cosine"),
+    "random_ref": ("own", "any"),
+    "fusion": ("adaptive", "sigmoid", "softmax", "avg"),
+    "eval_method": ("fast", "greedy"),
+}
+
+
+def scales_ok(s: str) -> bool:
+    """'global' or a comma list of distinct levels among 32, 16, 13."""
+    if s == "global":
+        return True
+    parts = [p.strip() for p in s.split(",")]
+    return bool(parts) and len(set(parts)) == len(parts) and set(parts) <= set(_LEVELS)
+
+
+def _err(nb: str, name: str, want: str, value: Any) -> ParameterError:
+    return ParameterError(f"notebook {nb}: parameter {name!r} expects {want}, got {value!r}")
+
+
+def check_values(notebook: str, P: dict[str, Any]) -> None:
+    """Raise :class:`ParameterError` on the first parameter value out of its domain.
+
+    ``P`` holds already type-checked values (see :func:`helpers.params.check_mapping`).
+    Names this module has no rule for are left alone.
+    """
+    from .render import STYLES
+
+    for name, lo in _MIN_INT.items():
+        if name in P and P[name] < lo:
+            raise _err(notebook, name, f"an int >= {lo}", P[name])
+    for name, options in _CHOICES.items():
+        if name in P and P[name] not in options:
+            raise _err(notebook, name, f"one of {list(options)}", P[name])
+    if "query_style" in P and P["query_style"] not in STYLES:
+        raise _err(notebook, "query_style", f"one of {sorted(STYLES)}", P["query_style"])
+    if "lr" in P and not P["lr"] > 0:
+        raise _err(notebook, "lr", "a learning rate > 0", P["lr"])
+    if "train_context" in P and not 1.0 <= P["train_context"] <= 2.0:
+        raise _err(notebook, "train_context", "a crop-side multiple in [1, 2]", P["train_context"])
+    if "render_size" in P and "image_size" in P and P["render_size"] < P["image_size"]:
+        raise _err(notebook, "render_size", f">= image_size ({P['image_size']})", P["render_size"])
+    if "split" in P and P["split"] not in _SPLITS:
+        raise _err(notebook, "split", f"one of {list(_SPLITS)}", P["split"])
+    for name in ("splits", "baseline_splits"):
+        v = P.get(name)
+        if v is not None and (not v or len(set(v)) != len(v) or not set(v) <= set(_SPLITS)):
+            raise _err(notebook, name, f"a non-empty list of distinct splits among {list(_SPLITS)}", v)
+    if "scales" in P and not scales_ok(P["scales"]):
+        raise _err(notebook, "scales", "'global' or a comma list of 32/16/13", P["scales"])
+    if "variants" in P:
+        _check_variants(notebook, P["variants"])
+    if "reference_counts" in P:
+        rc, n = P["reference_counts"], P.get("n_references")
+        if not rc or any(c < 1 for c in rc) or (n is not None and max(rc) > n):
+            raise _err(notebook, "reference_counts",
+                       f"a non-empty list of counts in [1, n_references={n}]", rc)
+    if "device" in P:
+        d = P["device"]
+        if not (d in ("auto", "cpu", "cuda") or (d.startswith("cuda:") and d[5:].isdigit())):
+            raise _err(notebook, "device", "'auto', 'cpu', 'cuda' or 'cuda:N'", d)
+    if "lr_milestones" in P:
+        m = P["lr_milestones"]
+        if list(m) != sorted(set(m)) or any(x < 1 for x in m):
+            raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
+    _check_configs(notebook, P)
+
+
+def _check_variants(notebook: str, variants: list) -> None:
+    if not variants or len(set(variants)) != len(variants):
+        raise _err(notebook, "variants", "a non-empty list without repeats", variants)
+    if notebook.startswith("04"):
+        bad = [v for v in variants if not scales_ok(v)]
+        want = "scale sets ('global' or comma lists of 32/16/13)"
+    elif notebook.startswith("05"):
+        bad = [v for v in variants if v not in _CHOICES["fusion"]]
+        want = f"fusions among {list(_CHOICES['fusion'])}"
+    else:
+        return
+    if bad:
+        raise _err(notebook, "variants", f"{want}; bad: {bad}", variants)
+
+
+def _check_configs(notebook: str, P: dict[str, Any]) -> None:
+    """Let the model and training configs check what they know (same messages as at training)."""
+    from .model import ModelConfig
+    from .train import TrainConfig
+
+    try:
+        if {"image_size", "fusion", "scales", "local_norm", "norm_window"} <= set(P):
+            scales = P["scales"] if P["scales"] == "global" else tuple(int(s) for s in P["scales"].split(","))
+            mc = ModelConfig(image_size=P["image_size"], fusion=P["fusion"], scales=scales,
+                             local_norm=P["local_norm"], norm_window=P["norm_window"])
+            if {"epochs", "batch_size", "lr", "lr_milestones"} <= set(P):
+                TrainConfig(epochs=P["epochs"], steps_per_epoch=P.get("steps_per_epoch") or None,
+                            batch_size=P["batch_size"], lr=P["lr"], lr_milestones=tuple(P["lr_milestones"]),
+                            lr_schedule=P.get("lr_schedule", "step"), warmup_steps=P.get("warmup_steps", 0),
+                            clean_steps=P.get("clean_steps", 0), random_ref=P.get("random_ref", "own"),
+                            seed=P.get("seed", 0), val_every=P.get("val_every", 1), model=mc)
+    except ValueError as e:
+        raise ParameterError(f"notebook {notebook}: {e}") from None
