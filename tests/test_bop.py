@@ -148,7 +148,11 @@ def test_crop_without_gt_info_uses_mask(tmp_path):
 def test_load_views(root):
     v = bop.load_bop_views(root, "test", 2, size=24)
     assert v.kind == "query" and v.images.shape == (2, 24, 24, 3) and v.masks.shape == (2, 24, 24)
-    assert v.rotations.dtype == np.float32 and v.symmetries.shape == (36, 3, 3)
+    assert v.rotations.dtype == np.float32
+    # Continuous symmetry kept exact by default; discretised on request (the old behaviour).
+    from helpers.rotations import Symmetries
+    assert isinstance(v.symmetries, Symmetries) and v.symmetries.axes.shape == (1, 3)
+    assert bop.load_bop_views(root, "test", 2, size=24, step_deg=10.0).symmetries.shape == (36, 3, 3)
     assert v.meta["instances"] == [(1, 0, 1), (1, 3, 0)]
     assert len(bop.load_bop_views(root, "test", 2, size=24, max_instances=1)) == 1
     with pytest.raises(bop.BOPFormatError, match="object 5"):

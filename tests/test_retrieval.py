@@ -196,3 +196,38 @@ def test_float16_bank_reaches_scorer_as_float16():
     assert synthetic_bank(2, 60, dtype=np.float64, k_ac=10).ref_feats(0, np.array([0])).dtype == torch.float32
     with pytest.raises(ValueError, match="query_batch"):
         search_all(np.zeros((1, 11, 1), np.float32), bank, rotation_scorer, method="fast", query_batch=0)
+
+
+def test_coarse_to_fine_matches_fast_and_scores_fewer_pairs():
+    K, R = 6, 2000
+    bank = synthetic_bank(K, R, k_ac=128)
+    truths = haar_uniform(20, seed=7)
+    objs = np.arange(20) % K
+    queries = np.stack([synthetic_feats(truths[i:i + 1], objs[i], K)[0] for i in range(20)])
+    fast = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=128, fps_k=32)
+    c2f = search_all(queries, bank, rotation_scorer, method="c2f", progress=False, k_ac=128, fps_k=32,
+                     coarse_k=16, refine_objects=2)
+    for f, c in zip(fast, c2f):
+        assert (c.obj_index, c.ref_index) == (f.obj_index, f.ref_index)
+        # Coarse anchors of every object + the rest of the anchors of 2 objects + the same refinement.
+        assert c.n_comparisons == f.n_comparisons - (K - 2) * (128 - 16)
+    # Every object refined: exactly the authors' category stage.
+    full = search_all(queries[:3], bank, rotation_scorer, method="c2f", progress=False, k_ac=128, fps_k=32,
+                      coarse_k=16, refine_objects=K)
+    assert [(p.obj_index, p.ref_index, p.n_comparisons) for p in full] == \
+        [(p.obj_index, p.ref_index, p.n_comparisons) for p in fast[:3]]
+
+
+def test_coarse_to_fine_counts_every_scored_pair_once():
+    calls = []
+
+    def counting(q, r):
+        calls.append(len(r))
+        return rotation_scorer(q, r)
+
+    bank = synthetic_bank(4, 600, k_ac=64)
+    q = synthetic_feats(haar_uniform(1, seed=3), 2, 4)[0]
+    p = fast_search(q, bank, counting, k_ac=64, fps_k=16, coarse_k=8, refine_objects=1)
+    assert sum(calls) == p.n_comparisons and p.obj_index == 2
+    with pytest.raises(ValueError, match="coarse_k and refine_objects"):
+        fast_search(q, bank, rotation_scorer, k_ac=64, coarse_k=8, refine_objects=0)

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 import trimesh
 
+from .rotations import Symmetries
 from .views import ObjectViews
 
 #: Rotations closer than this (degrees) count as the same symmetry.
@@ -51,6 +52,9 @@ class ModelInfo:
             first; discrete ones combined with the discretised continuous ones.
         bbox_min: (3,) model-frame bounding-box minimum, mm (zeros if absent).
         bbox_size: (3,) bounding-box size, mm (zeros if absent).
+        exact_symmetries: the same group kept exact: a :class:`helpers.rotations.Symmetries`
+            (continuous axis x discrete set) when the object has continuous symmetries,
+            else the discrete (K, 3, 3) array.
     """
 
     obj_id: int
@@ -58,6 +62,11 @@ class ModelInfo:
     symmetries: np.ndarray
     bbox_min: np.ndarray
     bbox_size: np.ndarray
+    exact_symmetries: Any = None
+
+    def __post_init__(self) -> None:
+        if self.exact_symmetries is None:
+            object.__setattr__(self, "exact_symmetries", self.symmetries)
 
 
 @dataclass(frozen=True)
@@ -207,6 +216,16 @@ def symmetry_rotations(entry: dict, path: Path, where: str, step_deg: float = 10
     return _dedup_rotations(combos)
 
 
+def exact_group(entry: dict, path: Path, where: str) -> Any:
+    """The symmetry group of one ``models_info`` entry without discretisation: a
+    :class:`Symmetries` if it lists continuous symmetries, else the discrete (K, 3, 3) set."""
+    disc = symmetry_rotations({k: v for k, v in entry.items() if k != "symmetries_continuous"}, path, where)
+    axes = [_floats(_get(s, "axis", path, f"{where}: symmetries_continuous[{i}]"), 3, path,
+                    f"{where}: symmetries_continuous[{i}].axis")
+            for i, s in enumerate(entry.get("symmetries_continuous", []) or [])]
+    return Symmetries(disc, np.array(axes)) if axes else disc
+
+
 def load_models_info(root: str | os.PathLike, step_deg: float = 10.0) -> dict[int, ModelInfo]:
     """Read ``models_info.json``: object id -> :class:`ModelInfo`.
 
@@ -224,7 +243,8 @@ def load_models_info(root: str | os.PathLike, step_deg: float = 10.0) -> dict[in
             raise BOPFormatError(f"{path}: {where}: diameter must be > 0 mm, got {diameter}")
         bmin = np.array([entry.get(f"min_{a}", 0.0) for a in "xyz"], dtype=np.float64)
         bsize = np.array([entry.get(f"size_{a}", 0.0) for a in "xyz"], dtype=np.float64)
-        out[obj_id] = ModelInfo(obj_id, diameter, symmetry_rotations(entry, path, where, step_deg), bmin, bsize)
+        out[obj_id] = ModelInfo(obj_id, diameter, symmetry_rotations(entry, path, where, step_deg), bmin, bsize,
+                                exact_group(entry, path, where))
     if not out:
         raise BOPFormatError(f"{path}: no objects listed (expected at least one entry)")
     return out
@@ -404,7 +424,7 @@ def crop_instance(inst: Instance, size: int = 128, pad: float = 1.0,
 def load_bop_views(root: str | os.PathLike, split: str, obj_id: int, size: int = 128,
                    max_instances: int | None = None, *, min_visib: float = 0.0, pad: float = 1.0,
                    box: str = "visib",
-                   name: str | None = None, step_deg: float = 10.0) -> ObjectViews:
+                   name: str | None = None, step_deg: float | None = None) -> ObjectViews:
     """All (or an evenly spread subset of) instances of one object as query views.
 
     Args:
@@ -415,14 +435,15 @@ def load_bop_views(root: str | os.PathLike, split: str, obj_id: int, size: int =
             sorted list (so every scene is represented, unlike "the first n").
         min_visib, pad, box: see :func:`iter_scene_instances` and :func:`crop_instance`.
         name: ObjectViews name (default ``"obj_XXXXXX"``).
-        step_deg: continuous-symmetry discretisation step.
+        step_deg: None (default): continuous symmetries kept exact (errors minimised in
+            closed form); a number: discretised every ``step_deg`` degrees, as before.
 
     Returns:
         ObjectViews(kind="query") with images (N,size,size,3) uint8, rotations
         (N,3,3) float32 ``R_m2c``, masks (N,size,size) bool, the object's
         symmetries, and ``meta["instances"]`` = list of (scene_id, im_id, gt_index).
     """
-    infos = load_models_info(root, step_deg)
+    infos = load_models_info(root, step_deg or 10.0)
     if int(obj_id) not in infos:
         raise BOPFormatError(f"{_models_info_path(Path(root))}: object {obj_id} is not listed "
                              f"(known: {sorted(infos)})")
@@ -442,7 +463,8 @@ def load_bop_views(root: str | os.PathLike, split: str, obj_id: int, size: int =
         images[i], masks[i] = crop_instance(inst, size, pad, box)
     rots = np.stack([inst.R_m2c for inst in insts]).astype(np.float32)
     return ObjectViews(name or f"obj_{int(obj_id):06d}", images, rots, masks, kind="query",
-                       symmetries=infos[int(obj_id)].symmetries,
+                       symmetries=(infos[int(obj_id)].exact_symmetries if step_deg is None
+                                   else infos[int(obj_id)].symmetries),
                        meta={"source": "bop", "root": str(root), "split": split, "obj_id": int(obj_id),
                              "size": int(size), "pad": float(pad), "box": box, "min_visib": float(min_visib),
                              "instances": [(i.scene_id, i.im_id, i.gt_index) for i in insts]})

@@ -17,13 +17,14 @@ import torch
 from tqdm.auto import tqdm
 
 from .device import resolve_device
-from .features import encode_views
+from .features import FeatureCache, encode_batch, encode_views, model_fingerprint
 from .fileio import atomic_save_npy, sha256_file, stable_hash
 from .figures import _plt, save
 from .meshes import ObjectMesh, load_mesh_file, normalise, set_color
 from .paths import cache_dir
 from .render import RenderConfig, render_reference
 from .rotations import haar_uniform
+from .views import ObjectViews
 
 
 @dataclass
@@ -46,35 +47,81 @@ class ByoResult:
     query_image: np.ndarray
 
 
-def load_query_image(path: str | os.PathLike, size: int) -> np.ndarray:
-    """Read an image crop and resize it to (size, size, 3) uint8 RGB.
+ALPHA_MODES = ("composite", "crop")
 
-    Raises ValueError naming the file if it is not a readable image.
+
+def load_query_image(path: str | os.PathLike, size: int, alpha: str = "composite") -> np.ndarray:
+    """Read an object crop as (size, size, 3) uint8 RGB, the way the references look.
+
+    * Transparency (RGBA/LA PNG): ``alpha="composite"`` blends the image over black,
+      the references' background; ``alpha="crop"`` first cuts the image to the box of
+      its non-transparent pixels (then composites over black). A crop's hidden pixels
+      never reach the network as they happen to be stored.
+    * A non-square crop is padded with black to a square around its centre, never cut:
+      the object stays whole and keeps its aspect ratio.
+    * Grey and 16-bit images are converted to 8-bit RGB.
+
+    Raises FileNotFoundError / ValueError naming the file and what was expected.
     """
     p = Path(path)
+    if alpha not in ALPHA_MODES:
+        raise ValueError(f"alpha: expected one of {ALPHA_MODES}, got {alpha!r}")
     if not p.is_file():
         raise FileNotFoundError(f"query image {p} does not exist")
-    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-    if img is None:
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
         raise ValueError(f"query image {p} is not a readable image (expected PNG/JPEG/... of an object crop)")
-    img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    h, w = img.shape[:2]
-    if h != w:  # centre-crop to a square: the method works on square crops
-        s = min(h, w)
-        img = img[(h - s) // 2:(h - s) // 2 + s, (w - s) // 2:(w - s) // 2 + s]
+    if img.dtype == np.uint16:
+        img = (img.astype(np.float32) / 257.0).round().astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise ValueError(f"query image {p}: unsupported pixel type {img.dtype} (expected 8- or 16-bit)")
+    if img.ndim == 2:
+        img = img[..., None]
+    a = None
+    if img.shape[2] in (2, 4):  # grey+alpha or BGRA
+        a = img[..., -1].astype(np.float32) / 255.0
+        img = img[..., :-1]
+    img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB) if img.shape[2] == 1 else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    if a is not None:
+        if not (a > 0).any():
+            raise ValueError(f"query image {p}: the alpha channel is fully transparent (no object to see)")
+        if alpha == "crop":
+            ys, xs = np.nonzero(a > 0)
+            img = img[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
+            a = a[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
+        img = (img.astype(np.float32) * a[..., None]).round().astype(np.uint8)  # over black
+    img = pad_to_square(img)
     return cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)
 
 
-def custom_object(mesh_path: str | os.PathLike, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7)) -> ObjectMesh:
+def pad_to_square(img: np.ndarray) -> np.ndarray:
+    """(H, W, 3) -> (S, S, 3), S = max(H, W): black bands on both sides of the short axis."""
+    h, w = img.shape[:2]
+    s = max(h, w)
+    top, left = (s - h) // 2, (s - w) // 2
+    return np.pad(img, ((top, s - h - top), (left, s - w - left), (0, 0)))
+
+
+def custom_object(mesh_path: str | os.PathLike, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
+                  sha256: str | None = None) -> ObjectMesh:
     """An ObjectMesh from any mesh file (normalised like the manifest objects).
 
-    ``color=None`` keeps the file's texture/colours.
+    ``color=None`` keeps the file's texture/colours. Every error names the file.
     """
-    mesh = load_mesh_file(mesh_path)
-    if color is not None:
-        mesh = set_color(mesh, color)
-    mesh = normalise(mesh)
-    return ObjectMesh(Path(mesh_path).stem, mesh, 0.2, color is None, sha256_file(mesh_path), np.eye(3)[None])
+    try:
+        mesh = load_mesh_file(mesh_path)
+        if color is not None:
+            mesh = set_color(mesh, color)
+        mesh = normalise(mesh)
+    except (ValueError, FileNotFoundError) as e:
+        if str(mesh_path) in str(e):
+            raise
+        raise type(e)(f"mesh file {mesh_path}: {e}") from None
+    return ObjectMesh(Path(mesh_path).stem, mesh, 0.2, color is None, sha256 or sha256_file(mesh_path), np.eye(3)[None])
+
+
+def _refset_key(sha: str, n: int, seed: int, cfg: RenderConfig, textured: bool) -> str:
+    return stable_hash({"sha": sha, "n": n, "seed": seed, "cfg": cfg.__dict__, "textured": textured})
 
 
 def render_custom_references(obj: ObjectMesh, n: int, cfg: RenderConfig, seed: int = 0,
@@ -83,8 +130,7 @@ def render_custom_references(obj: ObjectMesh, n: int, cfg: RenderConfig, seed: i
 
     Renders in this process (one GL context; do not fork afterwards).
     """
-    key = stable_hash({"sha": obj.sha256, "n": n, "seed": seed, "cfg": cfg.__dict__, "textured": obj.textured})
-    d = cache_dir(cache) / "byo" / f"{obj.name}-{key}"
+    d = _refs_dir(obj.name, _refset_key(obj.sha256, n, seed, cfg, obj.textured), cache)
     if (d / "images.npy").exists():
         return np.load(d / "images.npy"), np.load(d / "rotations.npy")
     R = haar_uniform(n, seed=seed)
@@ -96,22 +142,48 @@ def render_custom_references(obj: ObjectMesh, n: int, cfg: RenderConfig, seed: i
     return imgs, R.astype(np.float32)
 
 
+def _refs_dir(name: str, key: str, cache: str | os.PathLike | None) -> Path:
+    return cache_dir(cache) / "byo" / f"{name}-{key}"
+
+
 def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.PathLike, n_refs: int = 1024,
                       render_size: int = 160, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
-                      device: str = "auto", cache: str | os.PathLike | None = None) -> ByoResult:
-    """Estimate the rotation of the object in ``query_path`` from its mesh ``mesh_path``."""
+                      device: str = "auto", cache: str | os.PathLike | None = None,
+                      alpha: str = "composite") -> ByoResult:
+    """Estimate the rotation of the object in ``query_path`` from its mesh ``mesh_path``.
+
+    The references (renders) and their features are cached under ``<cache>/byo`` and
+    ``<cache>/features``, keyed by the mesh file's sha256, the reference set (count,
+    seed, render settings, colour) and the model's weights, so a second query of the
+    same object with the same model costs only the query's encoding and the search.
+    ``alpha``: how a transparent query crop is read (see :func:`load_query_image`).
+    """
     size = int(model.cfg.image_size) if hasattr(model, "cfg") else 128
-    query = load_query_image(query_path, size)
-    obj = custom_object(mesh_path, color)
-    refs, R = render_custom_references(obj, n_refs, RenderConfig(size=size, render_size=render_size), cache=cache)
+    query = load_query_image(query_path, size, alpha)
+    mesh_path = Path(mesh_path)
+    if not mesh_path.is_file():
+        raise FileNotFoundError(f"mesh file {mesh_path} does not exist")
+    sha = sha256_file(mesh_path)
+    cfg = RenderConfig(size=size, render_size=render_size)
+    key = _refset_key(sha, n_refs, 0, cfg, color is None)
     dev = resolve_device(device)
-    rf = torch.cat(list(encode_views(model, refs, device=dev)))
+    fc = FeatureCache(cache_dir(cache) / "features")
+    mkey = model_fingerprint(model)
+    rdir = _refs_dir(mesh_path.stem, key, cache)
+    feats = fc.load(mkey, f"byo-{key}")
+    if feats is not None and (rdir / "images.npy").exists():
+        refs, R = np.load(rdir / "images.npy", mmap_mode="r"), np.load(rdir / "rotations.npy")
+    else:
+        obj = custom_object(mesh_path, color, sha256=sha)
+        refs, R = render_custom_references(obj, n_refs, cfg, cache=cache)
+        views = ObjectViews(mesh_path.stem, refs, R, None, "reference")
+        feats = fc.get_or_build(model, mkey, views, f"byo-{key}", batch=encode_batch(dev), device=dev)
     qf = next(encode_views(model, query[None], device=dev))
     model.eval()
     with torch.inference_mode():
-        s = model.score(qf.to(dev), rf.to(dev))[0].float().cpu().numpy()
+        s = model.score(qf.to(dev), torch.from_numpy(np.asarray(feats)))[0].float().cpu().numpy()
     k = int(np.argmax(s))
-    return ByoResult(R[k].astype(np.float64), float(s[k]), k, refs[k], query)
+    return ByoResult(R[k].astype(np.float64), float(s[k]), k, np.array(refs[k]), query)
 
 
 def overlay_figure(res: ByoResult, path: str | os.PathLike) -> Path:

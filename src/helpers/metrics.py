@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .rotations import symmetric_geodesic_deg
+from .rotations import Symmetries, symmetric_geodesic_deg
 
 #: Columns of the per-object table, in order.
 PER_OBJECT_COLUMNS = ("n", "class_acc", "rot_acc", "median_err_deg", "mean_err_deg")
@@ -54,7 +54,7 @@ def rotation_errors_deg(R_est: np.ndarray, R_gt: np.ndarray, symmetries: np.ndar
     R_est, R_gt = R_est.reshape(-1, 3, 3), R_gt.reshape(-1, 3, 3)
     if len(R_est) != len(R_gt):
         raise ValueError(f"rotation_errors_deg: R_est has {len(R_est)} rotations, R_gt has {len(R_gt)}")
-    if symmetries is not None:
+    if symmetries is not None and not isinstance(symmetries, Symmetries):
         symmetries = np.asarray(symmetries, dtype=np.float64).reshape(-1, 3, 3)
     return symmetric_geodesic_deg(R_est, R_gt, symmetries)
 

@@ -48,6 +48,8 @@ LOCAL_NORM_CLAMP = 6.0
 # matters more than cache, so they are larger.
 _BLOCK_ELEMENTS = 2 ** 17
 _BLOCK_ELEMENTS_GRAD = 2 ** 22
+# On a GPU the blocks are sized for launch overhead, not a cache: 2**26 floats = 256 MB.
+_BLOCK_ELEMENTS_GPU = 2 ** 26
 # References per slice in the bilinear-logit path (slice * C * X <= this): the
 # float32 copy of the slice that the batched matmul needs stays at 16 MB.
 _SLICE_ELEMENTS = 2 ** 22
@@ -408,8 +410,16 @@ class OrientationNet(nn.Module):
         level-13 head output averaged over locations, then L2-normalised.
         """
         s = self.cfg.image_size
+        if not torch.is_tensor(images):
+            raise ValueError(f"images: expected a torch tensor (B,3,{s},{s}), got {type(images).__name__}")
         if images.ndim != 4 or tuple(images.shape[1:]) != (3, s, s):
             raise ValueError(f"images: expected (B,3,{s},{s}), got {tuple(images.shape)}")
+        if images.dtype != torch.uint8:
+            if not images.is_floating_point():
+                raise ValueError(f"images: expected uint8 in [0, 255] or float in [0, 1], got {images.dtype}")
+            if images.numel() and (images.min() < -1e-3 or images.max() > 1.0 + 1e-3):
+                raise ValueError(f"images: float images must lie in [0, 1] (got [{float(images.min()):.3g}, "
+                                 f"{float(images.max()):.3g}]); divide 8-bit values by 255")
         x = self.preprocess(images.to(next(self.parameters()).device))
         maps = self.decoder(*self.encoder(x))
         if self.cfg.is_global:
@@ -449,7 +459,9 @@ class OrientationNet(nn.Module):
         w, b = self._fusion_params(level)
         nq, c, nx = q.shape
         grad = torch.is_grad_enabled() and (q.requires_grad or r.requires_grad or w.requires_grad)
-        rb = max(1, (_BLOCK_ELEMENTS_GRAD if grad else _BLOCK_ELEMENTS) // (c * nx))
+        gpu = q.device.type != "cpu"
+        budget = _BLOCK_ELEMENTS_GPU if gpu else (_BLOCK_ELEMENTS_GRAD if grad else _BLOCK_ELEMENTS)
+        rb = max(1, budget // (c * nx))
 
         def run(fn, *args):
             return checkpoint(fn, *args, use_reentrant=False) if grad else fn(*args)
@@ -459,7 +471,7 @@ class OrientationNet(nn.Module):
                                            for s in range(0, r.shape[0], rb)], 0) for i in range(nq)], 0)
         k = w.shape[0]
         qw = (q.unsqueeze(1) * w[None, :, :, None]).reshape(nq * k, c, nx)  # (Q*K, C, X)
-        step = max(1, _SLICE_ELEMENTS // (c * nx))
+        step = max(1, (_BLOCK_ELEMENTS_GPU if gpu else _SLICE_ELEMENTS) // (c * nx))
         out = []
         for s0 in range(0, r.shape[0], step):
             rs = r[s0:s0 + step].float()

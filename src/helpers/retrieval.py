@@ -281,7 +281,8 @@ def authors_sizes(n_refs: int) -> list[int]:
 
 def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int = 1024, fps_k: int = 256,
                 schedule: str = "converge", top_anchors: int = 3, group: int = 1024,
-                max_moves_per_level: int = 20, anchor_scores: np.ndarray | None = None) -> Prediction:
+                max_moves_per_level: int = 20, anchor_scores: np.ndarray | None = None,
+                coarse_k: int | None = None, refine_objects: int = 3) -> Prediction:
     """Algorithm 1 of the method: anchors pick the category, then local refinement.
 
     1. Score the ``k_ac`` FPS anchors of every object; the category is the
@@ -303,6 +304,14 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
     ``n_comparisons`` counts distinct pairs. ``anchor_scores`` (K, A), if
     given, are this query's scores of ``bank.anchors(k_ac)`` computed
     elsewhere (see :func:`anchor_scores_batch`); they count as comparisons.
+
+    Coarse-to-fine category stage (``coarse_k``, not the authors' procedure; None
+    keeps theirs): score only the first ``coarse_k`` anchors of every object (FPS
+    is greedy, so they are the ``coarse_k``-point FPS set, spread over SO(3)),
+    keep the ``refine_objects`` objects with the best top-anchor means, score the
+    rest of the ``k_ac`` anchors of those alone and pick the category among them
+    by the authors' rule. K*k_ac anchor pairs become K*coarse_k +
+    refine_objects*(k_ac - coarse_k); the rotation stage is unchanged.
     """
     if schedule not in ("converge", "authors"):
         raise ValueError(f"fast_search: schedule must be 'converge' or 'authors', got {schedule!r}")
@@ -313,7 +322,15 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
     score = _ScoreCache(q, bank, scorer, group)
 
     anchors = bank.anchors(k_ac)
-    if anchor_scores is None:
+    top = min(top_anchors, len(anchors))
+    if coarse_k is not None and anchor_scores is None and coarse_k < len(anchors):
+        if coarse_k < 1 or refine_objects < 1:
+            raise ValueError(f"fast_search: coarse_k and refine_objects must be >= 1, got {coarse_k}, {refine_objects}")
+        anchor_scores = _coarse_to_fine_anchors(q, bank, scorer, k_ac, coarse_k, refine_objects, top)
+        for o in range(bank.n_objects):
+            seen = np.isfinite(anchor_scores[o])
+            score.put(o, anchors[seen], anchor_scores[o, seen])
+    elif anchor_scores is None:
         feats = bank.anchor_feats(k_ac)
         anchor_scores = np.stack([_run_scorer(scorer, q, feats[o]) for o in range(bank.n_objects)])  # (K, A)
     else:
@@ -321,10 +338,15 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
         if anchor_scores.shape != (bank.n_objects, len(anchors)):
             raise ValueError(f"fast_search: anchor_scores must be (K, A)=({bank.n_objects}, {len(anchors)}), "
                              f"got {anchor_scores.shape}")
-    for o in range(bank.n_objects):
-        score.put(o, anchors, anchor_scores[o])
-    top = min(top_anchors, len(anchors))
-    cat_score = -np.sort(-anchor_scores, axis=1)[:, :top].mean(axis=1)
+    if not np.isfinite(anchor_scores).all() and coarse_k is None:
+        raise ValueError("fast_search: anchor_scores hold non-finite values")
+    if np.isfinite(anchor_scores).all():  # (the coarse-to-fine stage recorded its own)
+        for o in range(bank.n_objects):
+            score.put(o, anchors, anchor_scores[o])
+    # Objects whose anchors were not all scored (coarse-to-fine) get -inf and are never chosen.
+    cat_score = np.where(np.isfinite(anchor_scores).all(axis=1),
+                         -np.sort(-np.nan_to_num(anchor_scores, neginf=-1e300), axis=1)[:, :top].mean(axis=1),
+                         -np.inf)
     obj = int(np.argmax(cat_score))
     j0 = int(np.argmax(anchor_scores[obj]))
     best, best_score = int(anchors[j0]), float(anchor_scores[obj, j0])
@@ -359,6 +381,22 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
     return Prediction(obj, best, best_score, score.n_comparisons, bank.rotations[best].copy(), bank.names[obj])
 
 
+def _coarse_to_fine_anchors(q: torch.Tensor, bank: ReferenceBank, scorer: Scorer, k_ac: int, coarse_k: int,
+                            refine_objects: int, top: int) -> np.ndarray:
+    """(K, A) anchor scores, -inf where not scored: the first ``coarse_k`` anchors of every
+    object, all anchors of the ``refine_objects`` objects best by their coarse top-``top`` mean."""
+    feats = bank.anchor_feats(k_ac)
+    n_anchor = len(feats[0])
+    out = np.full((bank.n_objects, n_anchor), -np.inf)
+    for o in range(bank.n_objects):
+        out[o, :coarse_k] = _run_scorer(scorer, q, feats[o][:coarse_k])
+    t = min(top, coarse_k)
+    coarse = -np.sort(-out[:, :coarse_k], axis=1)[:, :t].mean(axis=1)
+    for o in np.argsort(-coarse, kind="stable")[:refine_objects]:
+        out[o, coarse_k:] = _run_scorer(scorer, q, feats[o][coarse_k:])
+    return out
+
+
 def anchor_scores_batch(query_feats: torch.Tensor, bank: ReferenceBank, scorer: Scorer,
                         k_ac: int = 1024) -> np.ndarray:
     """(Q, K, A) scores of Q queries (Q, C, L) against every object's anchors.
@@ -389,6 +427,10 @@ def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, method: st
                progress: bool = True, query_batch: int = 1, **kwargs: Any) -> list[Prediction]:
     """Run :func:`greedy_search` or :func:`fast_search` for each of N queries (N, C, L).
 
+    ``method``: "greedy", "fast" (the authors' Algorithm 1) or "c2f" (fast search with
+    the coarse-to-fine category stage: ``coarse_k`` anchors per object first, default
+    64, then all ``k_ac`` anchors of ``refine_objects`` objects; always one query at a time).
+
     For "fast", the anchor stage of ``query_batch`` queries at a time is one
     batched scoring pass (:func:`anchor_scores_batch`); each prediction's
     ``seconds`` is its refinement plus an equal share of its batch's anchor
@@ -398,7 +440,10 @@ def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, method: st
     ``kwargs`` go to the search function (e.g.
     ``group``, ``k_ac``, ``schedule``).
     """
-    fns = {"greedy": greedy_search, "fast": fast_search}
+    fns = {"greedy": greedy_search, "fast": fast_search, "c2f": fast_search}
+    if method == "c2f":
+        kwargs.setdefault("coarse_k", 64)
+        query_batch = 1  # its category stage depends on each query's coarse scores
     if method not in fns:
         raise ValueError(f"search_all: method must be one of {sorted(fns)}, got {method!r}")
     if getattr(query_feats, "ndim", None) != 3:
@@ -409,6 +454,8 @@ def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, method: st
     n = len(query_feats)
     preds: list[Prediction] = []
     bar = tqdm(total=n, desc=f"{method} search", unit="query", disable=not progress)
+    if method == "c2f":
+        method = "fast"
     for s in range(0, n, query_batch if method == "fast" else 1):
         batch = query_feats[s:s + (query_batch if method == "fast" else 1)]
         share, pre = 0.0, [None] * len(batch)

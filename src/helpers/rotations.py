@@ -7,6 +7,8 @@ inside the code; functions with ``_deg`` in the name return degrees.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -130,17 +132,74 @@ def inplane_rotate_label(R_m2c: np.ndarray, image_angle_deg: float | np.ndarray)
     return rot_z(-np.radians(image_angle_deg)) @ R_m2c
 
 
-def symmetric_geodesic_deg(R_est: np.ndarray, R_gt: np.ndarray, symmetries: np.ndarray | None) -> np.ndarray:
+@dataclass(frozen=True)
+class Symmetries:
+    """Symmetry group of an object with continuous symmetries, kept exact.
+
+    The group is {Rot(a, t) @ D : t in [0, 2 pi), D in ``discrete``} for one axis
+    ``a`` (BOP's ``symmetries_continuous`` x ``symmetries_discrete``); with two or
+    more non-parallel axes it is all of SO(3) (a sphere), and every error is 0.
+
+    Attributes:
+        discrete: (K, 3, 3) model-frame rotations, identity included.
+        axes: (A, 3) unit axes of the continuous symmetries, model frame, A >= 1.
+    """
+
+    discrete: np.ndarray
+    axes: np.ndarray
+
+    def __post_init__(self) -> None:
+        d = np.asarray(self.discrete, dtype=np.float64).reshape(-1, 3, 3)
+        if not any(np.allclose(x, np.eye(3)) for x in d):
+            d = np.concatenate([np.eye(3)[None], d])
+        a = np.asarray(self.axes, dtype=np.float64).reshape(-1, 3)
+        if len(a) == 0 or (np.linalg.norm(a, axis=1) == 0).any():
+            raise ValueError(f"Symmetries.axes: expected non-zero 3-vectors, got {self.axes!r}")
+        object.__setattr__(self, "discrete", d)
+        object.__setattr__(self, "axes", a / np.linalg.norm(a, axis=1, keepdims=True))
+
+    @property
+    def full(self) -> bool:
+        """True when the axes span more than one direction (the group is SO(3))."""
+        return bool((np.abs(self.axes @ self.axes[0]) < 1 - 1e-9).any())
+
+
+def continuous_symmetric_geodesic_deg(R_est: np.ndarray, R_gt: np.ndarray, sym: Symmetries) -> np.ndarray:
+    """Exact min over the group of angle(R_est, R_gt @ Rot(a, t) @ D), degrees (N,).
+
+    For each D, with M = D R_est^T R_gt, trace(M Rot(a, t)) = a'Ma + cos t (tr M - a'Ma)
+    + sin t tr(M [a]x), whose maximum over t is a'Ma + sqrt((tr M - a'Ma)^2 + tr(M [a]x)^2):
+    the smallest angle in closed form, no discretisation.
+    """
+    R_est = np.asarray(R_est, dtype=np.float64).reshape(-1, 3, 3)
+    R_gt = np.asarray(R_gt, dtype=np.float64).reshape(-1, 3, 3)
+    if sym.full:
+        return np.zeros(len(R_est))
+    a = sym.axes[0]
+    skew = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    M = np.einsum("kij,nlj,nlm->nkim", sym.discrete, R_est, R_gt)  # D @ R_est^T @ R_gt: (N, K, 3, 3)
+    ama = np.einsum("i,nkij,j->nk", a, M, a)
+    A = np.einsum("nkii->nk", M) - ama
+    B = np.einsum("nkij,ji->nk", M, skew)
+    best = ama + np.sqrt(A * A + B * B)
+    return np.degrees(np.arccos(np.clip((best - 1.0) / 2.0, -1.0, 1.0))).min(axis=1)
+
+
+def symmetric_geodesic_deg(R_est: np.ndarray, R_gt: np.ndarray,
+                           symmetries: np.ndarray | Symmetries | None) -> np.ndarray:
     """Symmetry-aware error in degrees: min over S of angle(R_est, R_gt @ S).
 
     Args:
         R_est, R_gt: (N, 3, 3).
         symmetries: (K, 3, 3) model-frame symmetry rotations (identity should
-            be included; it is added if missing) or None for no symmetry.
+            be included; it is added if missing), a :class:`Symmetries` (continuous
+            symmetries, minimised exactly) or None for no symmetry.
 
     Returns:
         (N,) degrees.
     """
+    if isinstance(symmetries, Symmetries):
+        return continuous_symmetric_geodesic_deg(R_est, R_gt, symmetries)
     if symmetries is None or len(symmetries) == 0:
         return geodesic_deg(R_est, R_gt)
     sym = np.asarray(symmetries, dtype=np.float64)

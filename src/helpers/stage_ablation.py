@@ -265,6 +265,9 @@ def run_fast_vs_greedy(P: dict, out_dir: Path, data: StudyData | None = None) ->
                "fast (authors)": dict(method="fast", schedule="authors", query_batch=1, **fast_kw),
                f"fast (converge, {P['query_batch']}-query batches)": dict(
                    method="fast", schedule="converge", query_batch=P["query_batch"], **fast_kw)}
+    if P["coarse_k"]:
+        methods["coarse-to-fine (converge)"] = dict(method="c2f", schedule="converge", coarse_k=P["coarse_k"],
+                                                    refine_objects=P["refine_objects"], **fast_kw)
     bank.anchor_feats(P["k_ac"])  # gathered once per bank, before any timing
     rows, preds = [], {}
     for name, kw in methods.items():

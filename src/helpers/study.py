@@ -17,7 +17,7 @@ import torch
 
 from .datasets import ViewSetSpec, render_sets
 from .device import resolve_device
-from .features import FeatureCache, encode_views, model_fingerprint
+from .features import FeatureCache, encode_batch, encode_views, model_fingerprint
 from .fileio import atomic_write_json, read_json, stable_hash
 from .manifest import Manifest, load_manifest
 from .metrics import Record, per_query_table, summarise_queries
@@ -209,12 +209,6 @@ def reference_bank(model: Any, data: StudyData, objects: list[str], device: str 
         feats = [f[:n_refs] for f in feats]
         rot = rot[:n_refs]
     return ReferenceBank(feats, rot, objects, k_ac=k_ac)
-
-
-def encode_batch(device: torch.device) -> int:
-    """Images per encoder pass: 16 on CPU (the activations of a small batch stay in cache:
-    125 vs 93 images/s at 64 px for batches of 16 vs 64 on 2 cores), 256 on a GPU."""
-    return 16 if device.type == "cpu" else 256
 
 
 def encode_queries(model: Any, views: ObjectViews, device: str = "auto", batch: int | None = None) -> torch.Tensor:
