@@ -34,14 +34,16 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
     cfg = bench.BenchConfig(
         mode="tiny", render_objects=1, render_refs_per_object=4, render_size=32, render_repeats=1,
         render_warmup=0, inproc_renders=4, sizes=(64,), train_queries=2, train_refs=4, train_steps=1,
-        train_warmup=0, encode_batch=4, encode_repeats=1, fusion_refs_q1=32, fusion_q=2, fusion_refs_qmany=8,
+        train_warmup=0, train_ab_batch=2, train_ab_steps=2, train_ab_repeats=1, train_ab_warmup=0,
+        train_ab_data_repeats=2, train_ab_preprocess_calls=2, train_ab_objects=2, train_ab_refs_per_object=8,
+        train_ab_queries_per_object=4, encode_batch=4, encode_repeats=1, fusion_refs_q1=32, fusion_q=2, fusion_refs_qmany=8,
         fusion_repeats=1, gemm_n=256, gemm_repeats=1, retr_objects=2, retr_refs=(40, 80), retr_fast_queries=2,
         retr_greedy_queries=1, retr_batch_queries=3, retr_query_batch=2, real_refs=24, real_queries=1, real_objects=2, retry_contended=0)
     out = tmp_path / "bench.json"
     bench.run(cfg, out, tmp_root=str(tmp_path))
     res = json.loads(out.read_text())
 
-    for k in ("schema_version", "config", "provenance", "render", "train", "encode", "gemm", "fusion",
+    for k in ("schema_version", "config", "provenance", "render", "train", "train_ab", "encode", "gemm", "fusion",
               "retrieval_synthetic", "retrieval_real", "cache_bytes_13x10000", "memory", "targets", "summary"):
         assert k in res, k
     assert res["provenance"]["name"] == "bench" and "git" in res["provenance"]
@@ -53,6 +55,21 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
     _positive(r["render_reference_in_process"], "renders_per_s")
 
     _positive(res["train"]["64"], "images_per_s", "queries_per_s")
+    ab = res["train_ab"]
+    assert ab["image_size"] == 64 and ab["images_per_step"] == 6 and ab["steps_per_block"] == 2
+    for v in ("A", "B"):
+        _positive(ab[v], "images_per_s", "s_per_step_median")
+        assert len(ab[v]["losses"]) == 2 and len(ab[v]["block_s_all"]) == 1
+    _positive(ab, "ratio_images_per_s_B_over_A")
+    # Same init, seed and batches: the old and the separable box filter agree to float rounding
+    # (the normalised output amplifies it where the local variance is ~0, e.g. black backgrounds),
+    # and so do the losses after N steps; the A patch is undone afterwards.
+    assert ab["loss_max_abs_diff_A_vs_B"] < 1e-4 and ab["preprocess"]["max_abs_diff"] < 1e-3
+    import helpers.model as hm
+    assert hm._box_mean.__name__ == "_box_mean"
+    _positive(ab["preprocess"], "A_s_median", "B_s_median")
+    _positive(ab["breakdown"], "data_s_per_step", "compute_s_per_step", "make_s_median")
+    assert 0.0 < ab["breakdown"]["data_fraction"] < 1.0
     _positive(res["encode"]["64"], "refs_per_s")
     assert res["encode"]["64"]["feature_shape"] == [128, 16 * 16 + 8 * 8 + 5 * 5]
     _positive(res["gemm"], "gflops_per_s")
@@ -78,16 +95,30 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
         assert b["fast_batched"]["n_queries"] == 3 and b["fast_batched"]["query_batch"] == 2
         # The batched anchor stage changes the cost, not the answer.
         assert b["fast_batched"]["same_predictions_as_single_query"] == 1.0
+        _positive(b["c2f"], "s_per_query_median", "comparisons_per_query_median")
+        _positive(b, "speedup_greedy_over_c2f", "comparison_ratio_greedy_over_c2f")
+        assert 0.0 <= b["synthetic_agreement_c2f_greedy"] <= 1.0
+        # With refine_objects (3) >= K (2) objects every anchor is scored: c2f is the authors' search.
+        assert b["synthetic_agreement_c2f_fast"] == 1.0
+        assert b["c2f"]["comparisons_per_query_all"] == b["fast"]["comparisons_per_query_all"]
+    assert rs["c2f_params"]["coarse_k"] == 64 and rs["c2f_params"]["refine_objects"] == 3
     assert rs["write"]["bytes_on_disk"] == rs["write"]["bytes_from_shape"] == 2 * 80 * C * L * 2
 
     rr = res["retrieval_real"]
     assert 0.0 <= rr["agreement_same_reference"] <= 1.0 and rr["n_queries"] == 2
-    for m in ("fast", "greedy"):
+    assert rr["agreement_c2f_fast_same_reference"] == 1.0  # 2 objects <= refine_objects, as above
+    assert 0.0 <= rr["agreement_c2f_greedy_same_reference"] <= 1.0
+    assert rr["c2f_params"]["coarse_k"] < rr["c2f_params"]["k_ac"]
+    for m in ("fast", "greedy", "c2f"):
         assert 0.0 <= rr[m]["rot_acc_pct"] <= 100.0
         _positive(rr[m], "s_per_query_median")
 
     assert res["cache_bytes_13x10000"]["64"]["bytes"] == 13 * 10_000 * C * L * 2
     t = res["targets"]
     assert t["cache_bytes_13x10000_64px"]["met"] is True and t["cache_bytes_13x10000_128px"]["met"] is False
-    assert t["fast_s_per_query_13x10000"]["met"] is None and t["fast_s_per_query_13x10000"]["reason"]
+    for k in ("fast_s_per_query_13x10000", "c2f_s_per_query_13x10000", "speedup_c2f_vs_greedy_13x10000"):
+        assert t[k]["met"] is None and t[k]["reason"], k
+    for k in ("train_ab_ratio_B_over_A", "train_ab_data_fraction", "c2f_s_per_query_2x80", "speedup_c2f_2x80",
+              "real_rot_acc_c2f_pct"):
+        assert k in res["summary"], k
     _positive(res["memory"]["peak"], "maxrss_bytes")

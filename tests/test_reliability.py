@@ -111,22 +111,23 @@ def test_checkpoint_write_on_full_disk_keeps_last_checkpoint(tmp_path, monkeypat
 
 @pytest.mark.gl
 def test_smoke_preset_is_deterministic(tmp_path):
-    """Two runs of the smoke training stage from empty caches give identical metrics (CPU, same seed)."""
-    from helpers.params import declared_parameters, notebook_path
-    from helpers.stage_train import run_train_stage
+    """Two runs of notebook 02 (smoke preset) from empty caches give identical metrics (CPU, same seed)."""
+    import papermill as pm
 
-    P = declared_parameters(notebook_path("02_train"))
-    P.update(device="cpu", workers=0)
+    from helpers.params import notebook_path
+
     runs = []
     for k in range(2):
-        P.update(cache_dir=str(tmp_path / f"cache{k}"))
         out = tmp_path / f"out{k}"
-        m = run_train_stage(dict(P), out)
+        pm.execute_notebook(str(notebook_path("02_train")), str(tmp_path / f"02_{k}.ipynb"), kernel_name="python3",
+                            progress_bar=False, parameters={"device": "cpu", "workers": 0, "out_dir": str(out),
+                                                            "cache_dir": str(tmp_path / f"cache{k}")})
         hist = json.loads((out / "history.json").read_text())
         for h in hist["history"]:
             for t in ("seconds", "images_per_s"):
                 h.pop(t)
         table = (out / "unseen_per_object.csv").read_text()
+        m = json.loads((out / "train_metrics.json").read_text())
         m = {k2: v for k2, v in m.items() if k2 not in ("run_dir", "checkpoint", "train_seconds",
                                                           "train_images_per_s")}
         m["unseen_test"].pop("s_per_query")

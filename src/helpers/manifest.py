@@ -242,3 +242,14 @@ def verify(manifest: Manifest | None = None) -> dict[str, Path]:
     for b in m.backgrounds:
         out[f"background:{b.name}"] = verify_file(b.file, f"background {b.name!r}")
     return out
+
+
+def object_table(manifest: "Manifest | None" = None):
+    """One row per manifest object: role, split, source package/version, file, sha256 prefix."""
+    import pandas as pd
+
+    m = manifest or load_manifest()
+    rows = [{"object": o.name, "role": o.role, "split": o.split if o.split else "-", "source": o.source.package,
+             "version": o.source.version, "file": o.mesh.path, "sha256": o.mesh.sha256[:12],
+             "textured": o.color is None, "licence": o.licence, "description": o.description} for o in m.objects]
+    return pd.DataFrame(rows)

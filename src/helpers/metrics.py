@@ -197,3 +197,30 @@ def paired_difference(a: pd.DataFrame, b: pd.DataFrame, column: str = "rot_ok", 
     lo, hi = (float(x) for x in np.quantile(boots, [(1 - level) / 2, (1 + level) / 2]))
     verdict = "b > a" if lo > 0 else "b < a" if hi < 0 else "within noise"
     return {"diff_pts": point, "ci": [lo, hi], "level": level, "n_queries": int(len(d)), "verdict": verdict}
+
+
+def chance_levels(n_objects: int, threshold_deg: float = 30.0) -> dict[str, float]:
+    """Accuracy (%) of guessing: class uniformly, rotation Haar-uniformly.
+
+    P(angle < t) for a Haar rotation is (t - sin t) / pi.
+    """
+    t = np.radians(threshold_deg)
+    p_rot = (t - np.sin(t)) / np.pi
+    return {"class_acc": 100.0 / n_objects, "rot_acc": 100.0 * p_rot / n_objects}
+
+
+def agreement_within(greedy: list, fast: list, threshold_deg: float = 30.0, n_boot: int = 2000,
+                     seed: int = 0) -> dict:
+    """Share of queries on which ``fast`` predicts greedy's object and a rotation within
+    ``threshold_deg`` of greedy's (symmetry-aware), with a bootstrap 95 % interval over queries.
+
+    Both are lists of :class:`helpers.metrics.Record` for the same queries, in order.
+    """
+    ok = np.array([a.pred_obj == b.pred_obj and
+                   float(symmetric_geodesic_deg(a.R_est[None], b.R_est[None], a.symmetries if a.pred_obj == a.obj
+                                                else None)[0]) < threshold_deg
+                   for a, b in zip(greedy, fast)], dtype=float)
+    rng = np.random.default_rng(seed)
+    boots = ok[rng.integers(0, len(ok), size=(n_boot, len(ok)))].mean(axis=1) if len(ok) else np.zeros(1)
+    return {"share": float(ok.mean()) if len(ok) else float("nan"),
+            "ci95": [float(np.quantile(boots, 0.025)), float(np.quantile(boots, 0.975))], "n": int(len(ok))}

@@ -258,3 +258,23 @@ def summary_row(label: str, res: dict[str, Any]) -> dict[str, Any]:
     return {"setting": label, "class_acc": m.get("class_acc"), "rot_acc": m.get("rot_acc"),
             "median_err_deg": m.get("median_err_deg"), "n_queries": int(res["per_object"]["n"].sum()),
             "s_per_query": float(np.median(res["seconds_per_query"])) if res["seconds_per_query"] else None}
+
+
+def render_summary(data: StudyData, verify_seconds: float, render_seconds: float) -> dict[str, Any]:
+    """What notebook 01 records about the rendered benchmark: config, objects, view counts, timings,
+    GL backend, reference bytes (per object and scaled to 10,000 references) and every cache key."""
+    from .render import gl_platform
+
+    cfg = data.cfg
+    kinds = ("refs", "train_q", "val_q", "test_q", "occluded_q")
+    sets = [vs for kind in kinds for vs in getattr(data, kind).values()]
+    ref_bytes = sum(v.meta["bytes"] for v in data.refs.values())
+    n_obj = len(data.refs)
+    return {
+        "data_config": asdict(cfg), "objects": list(data.refs), "views": sum(len(s) for s in sets),
+        "verify_seconds": verify_seconds, "render_or_load_seconds": render_seconds,
+        "gl_platform": gl_platform(),  # the headless GL backend renders used (probed if nothing rendered)
+        "reference_bytes_per_object": ref_bytes / n_obj,
+        "reference_bytes_per_10000_per_object": ref_bytes / n_obj / cfg.n_references * 10000,
+        "cache_keys": {f"{kind}/{n}": vs.meta["key"] for kind in kinds for n, vs in getattr(data, kind).items()},
+    }

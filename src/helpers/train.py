@@ -601,3 +601,16 @@ def plot_history(history: list[dict], path: str | Path) -> Path:
     fig.savefig(buf, dpi=100, format="png")
     atomic_write_bytes(path, buf.getvalue())
     return path
+
+
+def best_validation(hist: dict) -> dict | None:
+    """Validation summary (accuracies in %) of the selected epoch, if any."""
+    best = hist.get("best_epoch")
+    for h in hist.get("history", []):
+        if h.get("epoch") == best and h.get("val"):
+            v = dict(h["val"])
+            for k in ("class_acc", "rot_acc"):
+                if k in v and v[k] is not None:
+                    v[k] = 100.0 * v[k]
+            return {"epoch": best, **v}
+    return None
