@@ -8,6 +8,7 @@ the query and draws the retrieved reference beside the query.
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -180,7 +181,9 @@ def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.
         feats = fc.get_or_build(model, mkey, views, f"byo-{key}", batch=encode_batch(dev), device=dev)
     qf = next(encode_views(model, query[None], device=dev))
     model.eval()
-    with torch.inference_mode():
+    with torch.inference_mode(), warnings.catch_warnings():
+        # The cached features are a read-only memmap; score() only reads them (chunk by chunk).
+        warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
         s = model.score(qf.to(dev), torch.from_numpy(np.asarray(feats)))[0].float().cpu().numpy()
     k = int(np.argmax(s))
     return ByoResult(R[k].astype(np.float64), float(s[k]), k, np.array(refs[k]), query)

@@ -21,8 +21,9 @@ def git_revision(repo: Path = REPO_ROOT) -> dict[str, Any]:
     """{"commit": sha or None, "dirty": bool or None}."""
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=repo, capture_output=True, text=True, timeout=10)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=repo,
-                               capture_output=True, text=True, timeout=10)
+        # reports/ is excluded: the runner itself rewrites the committed reports while it runs.
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":!reports"],
+                               cwd=repo, capture_output=True, text=True, timeout=10)
         if sha.returncode != 0:
             return {"commit": None, "dirty": None}
         return {"commit": sha.stdout.strip(), "dirty": bool(dirty.stdout.strip())}
