@@ -159,13 +159,22 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
     run = cache_dir(data.cfg.cache_dir or None) / "runs" / f"split{split}-{key}"
     done = run / "done.json"
     if not done.exists():
+        from .train import distributed_world
+
         t0 = time.perf_counter()
         res = train(train_cfg, {n: data.refs[n] for n in seen}, {n: data.train_q[n] for n in seen},
                     {n: _val_refs(data.refs[n], val_refs_per_object) for n in seen},
                     {n: data.val_q[n] for n in seen}, run, resume=True,
                     clean_queries={n: data.clean_q[n] for n in seen} if curriculum else None)
-        atomic_write_json(done, {"split": split, "seen": seen, "seconds_this_session": time.perf_counter() - t0,
-                                 "best": str(res.best_path), "train_images_per_s": res.train_images_per_s})
+        rank, world = distributed_world()
+        if rank == 0:  # in a data-parallel run, process 0 writes; the others wait for it
+            atomic_write_json(done, {"split": split, "seen": seen, "seconds_this_session": time.perf_counter() - t0,
+                                     "best": str(res.best_path), "train_images_per_s": res.train_images_per_s,
+                                     "processes": world})
+        if world > 1:
+            import torch.distributed as dist
+
+            dist.barrier()
     info = read_json(done)
     model, _ = load_model(run / "best.pt", device=getattr(train_cfg, "device", "auto"))
     model.eval()

@@ -370,7 +370,7 @@ class _Batcher:
 
 
 def train_step(model: OrientationNet, optimizer: torch.optim.Optimizer, images: torch.Tensor,
-               q_obj, q_rot, r_obj, r_rot, tau: float = 0.1, weighted: bool = True) -> float:
+               q_obj, q_rot, r_obj, r_rot, tau: float = 0.1, weighted: bool = True, encode=None) -> float:
     """One optimiser step on a prepared batch; returns the loss.
 
     Args:
@@ -378,9 +378,11 @@ def train_step(model: OrientationNet, optimizer: torch.optim.Optimizer, images: 
             positives then B random references.
         q_obj, q_rot, r_obj, r_rot: labels for :func:`helpers.losses.pair_weights`
             ((B,), (B,3,3), (2B,), (2B,3,3)).
+        encode: images -> features of all 3B images (default ``model.encode``; the
+            distributed run encodes its shard and gathers, see :func:`sharded_encoder`).
     """
     b = len(q_obj)
-    feats = model.encode(images)
+    feats = (encode or model.encode)(images)
     scores = model.score(feats[:b], feats[b:])  # (B, 2B); column i is query i's positive
     weights = pair_weights(q_obj, q_rot, r_obj, r_rot).to(scores.device) if weighted else None
     loss = weighted_info_nce(scores, torch.arange(b, device=scores.device), weights, tau)
@@ -388,6 +390,35 @@ def train_step(model: OrientationNet, optimizer: torch.optim.Optimizer, images: 
     loss.backward()
     optimizer.step()
     return float(loss.detach())
+
+
+def distributed_world() -> tuple[int, int]:
+    """(rank, world size) of an initialised torch.distributed process group, else (0, 1)."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def sharded_encoder(net: torch.nn.Module, rank: int, world: int):
+    """Encoder for data-parallel training with the SAME global batch as one process.
+
+    Every process builds the whole batch (same seed, same augmentation), encodes only its
+    contiguous share of the 3B images through the DistributedDataParallel-wrapped model and
+    all-gathers the features with autograd, so each process computes the full B x 2B loss.
+    Gradient bookkeeping: the gather's backward sums the (identical) losses' gradients of all
+    W processes into each share, W times the single-process gradient; DDP then averages over
+    the W processes, which gives exactly the single-process gradient for every weight (the
+    fusion head, used outside the wrapped forward, gets the plain gradient on every process
+    and is averaged to itself).
+    """
+    from torch.distributed.nn.functional import all_gather
+
+    def encode(images: torch.Tensor) -> torch.Tensor:
+        return torch.cat(all_gather(net(images.tensor_split(world)[rank].contiguous())), 0)
+
+    return encode
 
 
 def lr_factor(cfg: TrainConfig, steps_per_epoch: int):
@@ -404,6 +435,12 @@ def lr_factor(cfg: TrainConfig, steps_per_epoch: int):
         return warm * cfg.lr_gamma ** sum(epoch >= m for m in milestones)
 
     return f
+
+
+def _barrier() -> None:
+    import torch.distributed as dist
+
+    dist.barrier()
 
 
 def _rng_state() -> dict:
@@ -478,9 +515,19 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
             raise ValueError("train_queries: expected at least one training query")
         steps = cfg.steps_per_epoch or math.ceil(len(batcher) / cfg.batch_size)
 
+        rank, world = distributed_world()
+        if world > 1 and (3 * cfg.batch_size) % world:
+            raise ValueError(f"TrainConfig.batch_size: 3 x {cfg.batch_size} images per step do not split evenly "
+                             f"over {world} processes")
         torch.manual_seed(cfg.seed)
         rng = np.random.default_rng(cfg.seed)
         model = OrientationNet(cfg.model).to(device)
+        encode = None
+        if world > 1:  # every process holds the same weights; gradients are averaged by DDP
+            from torch.nn.parallel import DistributedDataParallel
+
+            net = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+            encode = sharded_encoder(net, rank, world)
         optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
         scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_factor(cfg, steps))
         history: list[dict] = []
@@ -512,14 +559,14 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
             order = _order_stream(rng, len(batcher), steps * cfg.batch_size)
             losses = []
             t0 = time.perf_counter()
-            bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress,
+            bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress or rank > 0,
                        leave=False)
             for step in bar:
                 picks = order[step * cfg.batch_size:(step + 1) * cfg.batch_size]
                 p_clean = max(0.0, 1.0 - global_step / cfg.clean_steps) if cfg.clean_steps else 0.0
                 imgs, q_obj, q_rot, r_obj, r_rot = batcher.make(picks, rng, p_clean)
                 loss = train_step(model, optimizer, images_to_tensor(imgs).to(device),
-                                  q_obj, q_rot, r_obj, r_rot, cfg.tau, cfg.weighted_loss)
+                                  q_obj, q_rot, r_obj, r_rot, cfg.tau, cfg.weighted_loss, encode)
                 if not math.isfinite(loss):
                     raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}, step {step}")
                 losses.append(loss)
@@ -531,6 +578,10 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
             speeds.append(speed)
 
             val = None
+            if rank > 0:  # only the first process validates and writes; the others wait for its files
+                history.append({"epoch": epoch + 1, "global_step": global_step})
+                _barrier()
+                continue
             if do_val and ((epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs):
                 val = validate(model, val_refs, val_queries, device, cfg.val_batch_size)
                 val.pop("per_object")
@@ -555,6 +606,10 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
                                 "best_metric": best_metric, "best_epoch": best_epoch}, last_path)
             atomic_write_text(out_dir / "history.json",
                               json.dumps({"best_epoch": best_epoch, "history": history}, indent=1))
+            if world > 1:
+                _barrier()
+        if rank > 0:
+            return TrainResult(best_path, last_path, history, float(np.mean(speeds)) if speeds else float("nan"))
         if history:
             plot_history(history, out_dir / "history.png")
         return TrainResult(best_path, last_path, history, float(np.mean(speeds)) if speeds else float("nan"))
