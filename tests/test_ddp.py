@@ -90,7 +90,7 @@ def _grad_worker(rank: int, world: int, port: int, out: str) -> None:
     dist.init_process_group("gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=world)
     try:
         model, batch = _grad_setup()
-        from helpers.train import sharded_encoder
+        from helpers.distributed import sharded_encoder
         net = DistributedDataParallel(model)
         _loss(model, batch, sharded_encoder(net, rank, world)).backward()
         if rank == 0:

@@ -159,7 +159,7 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
     run = cache_dir(data.cfg.cache_dir or None) / "runs" / f"split{split}-{key}"
     done = run / "done.json"
     if not done.exists():
-        from .train import distributed_world
+        from .distributed import distributed_world
 
         t0 = time.perf_counter()
         res = train(train_cfg, {n: data.refs[n] for n in seen}, {n: data.train_q[n] for n in seen},

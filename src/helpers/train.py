@@ -31,13 +31,15 @@ from tqdm.auto import tqdm
 
 from .augment import AugmentConfig, augment_batch
 from .device import resolve_device
+from .distributed import barrier, distributed_world, sharded_encoder  # noqa: F401  (re-exported)
 from .fileio import atomic_write_bytes, atomic_write_text
 from .losses import pair_weights, weighted_info_nce
 from .model import ModelConfig, OrientationNet, images_to_tensor
-from .rotations import nearest, symmetric_geodesic_deg
+from .rotations import nearest
+from .validation import (ROT_THRESHOLD_DEG, best_validation, plot_history, selection_metric,  # noqa: F401
+                         validate)
 from .views import ObjectViews
 
-ROT_THRESHOLD_DEG = 30.0
 SELECT_ON = ("mean_acc", "rot_acc")
 RANDOM_REF = ("own", "any")
 LR_SCHEDULES = ("step", "cosine")
@@ -229,76 +231,6 @@ def _order_stream(rng: np.random.Generator, n: int, count: int) -> np.ndarray:
     return np.concatenate([rng.permutation(n) for _ in range(reps)])[:count]
 
 
-def _encode_views(model: OrientationNet, images: np.ndarray, device: torch.device, batch: int,
-                  dtype: torch.dtype = torch.float32) -> torch.Tensor:
-    """Encode (N, S, S, 3) uint8 in batches (no grad) -> (N, C, L) of ``dtype`` on ``device``."""
-    out = []
-    with torch.inference_mode():
-        for s in range(0, len(images), batch):
-            out.append(model.encode(images_to_tensor(images[s:s + batch]).to(device)).to(dtype))
-    return torch.cat(out, 0) if out else torch.zeros(0, model.cfg.channels, model.feature_length,
-                                                     dtype=dtype, device=device)
-
-
-def validate(model: OrientationNet, val_refs: dict[str, ObjectViews], val_queries: dict[str, ObjectViews],
-             device: str | torch.device = "auto", batch_size: int = 32) -> dict:
-    """Retrieval accuracy of seen-object validation queries against validation references.
-
-    Every query is scored against the references of *all* objects in
-    ``val_refs``; the best one gives the predicted object and rotation.
-
-    Returns:
-        dict with ``class_acc`` and ``rot_acc`` (fractions in [0, 1]; rot_acc
-        needs the right object and a symmetry-aware error < 30 degrees) and
-        ``median_err_deg`` (median rotation error of the retrieved reference,
-        whatever its object), each averaged per object then over objects,
-        plus ``per_object`` {name: {class_acc, rot_acc, median_err_deg, n}}.
-    """
-    device = resolve_device(device)
-    names = sorted(val_refs)
-    missing = set(val_queries) - set(names)
-    if missing:
-        raise ValueError(f"val_queries: objects {sorted(missing)} have no validation references")
-    was_training = model.training
-    model.eval()
-    try:
-        ref_feats = _encode_views(model, np.concatenate([val_refs[n].images for n in names]), device,
-                                  batch_size, torch.float16)  # float16 like the retrieval cache
-        ref_obj = np.concatenate([np.full(len(val_refs[n]), i) for i, n in enumerate(names)])
-        ref_rot = np.concatenate([np.asarray(val_refs[n].rotations, np.float64) for n in names])
-        per_object = {}
-        for name in sorted(val_queries):
-            qv = val_queries[name]
-            if len(qv) == 0:
-                continue
-            best = []
-            for s in range(0, len(qv), batch_size):
-                qf = _encode_views(model, qv.images[s:s + batch_size], device, batch_size)
-                with torch.inference_mode():
-                    best.append(model.score(qf, ref_feats).argmax(dim=1).cpu().numpy())
-            best = np.concatenate(best)
-            sym = qv.symmetries if qv.symmetries is not None else val_refs[name].symmetries
-            err = symmetric_geodesic_deg(ref_rot[best], np.asarray(qv.rotations, np.float64), sym)
-            correct = ref_obj[best] == names.index(name)
-            per_object[name] = {"class_acc": float(correct.mean()),
-                                "rot_acc": float((correct & (err < ROT_THRESHOLD_DEG)).mean()),
-                                "median_err_deg": float(np.median(err)), "n": int(len(qv))}
-    finally:
-        model.train(was_training)
-    keys = ("class_acc", "rot_acc", "median_err_deg")
-    summary = {k: float(np.mean([m[k] for m in per_object.values()])) if per_object else float("nan")
-               for k in keys}
-    summary["per_object"] = per_object
-    return summary
-
-
-def selection_metric(val: dict, select_on: str) -> float:
-    """The number model selection maximises, from a :func:`validate` summary."""
-    if select_on == "rot_acc":
-        return float(val["rot_acc"])
-    return 0.5 * (float(val["class_acc"]) + float(val["rot_acc"]))
-
-
 class _Batcher:
     """Builds training batches: augmented queries, positives and random references."""
 
@@ -392,35 +324,6 @@ def train_step(model: OrientationNet, optimizer: torch.optim.Optimizer, images: 
     return float(loss.detach())
 
 
-def distributed_world() -> tuple[int, int]:
-    """(rank, world size) of an initialised torch.distributed process group, else (0, 1)."""
-    import torch.distributed as dist
-
-    if dist.is_available() and dist.is_initialized():
-        return dist.get_rank(), dist.get_world_size()
-    return 0, 1
-
-
-def sharded_encoder(net: torch.nn.Module, rank: int, world: int):
-    """Encoder for data-parallel training with the SAME global batch as one process.
-
-    Every process builds the whole batch (same seed, same augmentation), encodes only its
-    contiguous share of the 3B images through the DistributedDataParallel-wrapped model and
-    all-gathers the features with autograd, so each process computes the full B x 2B loss.
-    Gradient bookkeeping: the gather's backward sums the (identical) losses' gradients of all
-    W processes into each share, W times the single-process gradient; DDP then averages over
-    the W processes, which gives exactly the single-process gradient for every weight (the
-    fusion head, used outside the wrapped forward, gets the plain gradient on every process
-    and is averaged to itself).
-    """
-    from torch.distributed.nn.functional import all_gather
-
-    def encode(images: torch.Tensor) -> torch.Tensor:
-        return torch.cat(all_gather(net(images.tensor_split(world)[rank].contiguous())), 0)
-
-    return encode
-
-
 def lr_factor(cfg: TrainConfig, steps_per_epoch: int):
     """Multiplier of ``cfg.lr`` as a function of the optimiser step (0-based): linear
     warm-up over ``warmup_steps``, then milestones (per epoch) or a cosine to 0."""
@@ -435,12 +338,6 @@ def lr_factor(cfg: TrainConfig, steps_per_epoch: int):
         return warm * cfg.lr_gamma ** sum(epoch >= m for m in milestones)
 
     return f
-
-
-def _barrier() -> None:
-    import torch.distributed as dist
-
-    dist.barrier()
 
 
 def _rng_state() -> dict:
@@ -580,7 +477,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
             val = None
             if rank > 0:  # only the first process validates and writes; the others wait for its files
                 history.append({"epoch": epoch + 1, "global_step": global_step})
-                _barrier()
+                barrier()
                 continue
             if do_val and ((epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs):
                 val = validate(model, val_refs, val_queries, device, cfg.val_batch_size)
@@ -607,7 +504,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
             atomic_write_text(out_dir / "history.json",
                               json.dumps({"best_epoch": best_epoch, "history": history}, indent=1))
             if world > 1:
-                _barrier()
+                barrier()
         if rank > 0:
             return TrainResult(best_path, last_path, history, float(np.mean(speeds)) if speeds else float("nan"))
         if history:
@@ -624,48 +521,3 @@ def load_model(path: str | Path, device: str | torch.device = "auto") -> tuple[O
     model = OrientationNet(ModelConfig.from_dict(ck["model_config"]))
     model.load_state_dict(ck["model"])
     return model.to(device).eval(), ck
-
-
-def plot_history(history: list[dict], path: str | Path) -> Path:
-    """Save the learning curve as a PNG: training loss vs optimiser steps (left), validation
-    accuracies (seen objects, %) vs steps (middle) and vs cumulative training minutes (right)."""
-    # Figure + Agg canvas directly: no global pyplot/backend state is touched.
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(12, 3.5))
-    FigureCanvasAgg(fig)
-    ax1, ax2, ax3 = fig.subplots(1, 3)
-    steps = [h.get("global_step", h["epoch"]) for h in history]
-    minutes = np.cumsum([h.get("seconds", 0.0) for h in history]) / 60.0
-    ax1.plot(steps, [h["train_loss"] for h in history], marker=".")
-    ax1.set(xlabel="optimiser steps", ylabel="train loss (mean over the epoch)", title="training loss")
-    val = [(st, mi, h["val"]) for st, mi, h in zip(steps, minutes, history) if h.get("val")]
-    for ax, xi, xl in ((ax2, 0, "optimiser steps"), (ax3, 1, "training minutes (CPU wall, validation excluded)")):
-        if val:
-            x = [v[xi] for v in val]
-            ax.plot(x, [100 * v[2]["class_acc"] for v in val], marker=".", label="Class. Acc.")
-            ax.plot(x, [100 * v[2]["rot_acc"] for v in val], marker=".", label=f"Rota. Acc. (<{ROT_THRESHOLD_DEG:.0f} deg)")
-            ax.legend(fontsize=8)
-        ax.set(xlabel=xl, ylabel="%", title="validation: held-out views of SEEN objects")
-    for ax in (ax1, ax2, ax3):
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=100, format="png")
-    atomic_write_bytes(path, buf.getvalue())
-    return path
-
-
-def best_validation(hist: dict) -> dict | None:
-    """Validation summary (accuracies in %) of the selected epoch, if any."""
-    best = hist.get("best_epoch")
-    for h in hist.get("history", []):
-        if h.get("epoch") == best and h.get("val"):
-            v = dict(h["val"])
-            for k in ("class_acc", "rot_acc"):
-                if k in v and v[k] is not None:
-                    v[k] = 100.0 * v[k]
-            return {"epoch": best, **v}
-    return None
