@@ -12,24 +12,8 @@ import time
 
 import numpy as np
 
+from bench_train import monotone_readout  # the CPU benchmark's score readout, the same on the GPU
 from gpu_sections import Ctx, _log, cuda_mem, release_cuda
-
-
-def monotone_readout(model) -> None:
-    """Fusion MLP -> score = tanh(3 * mean over levels of the fused cosine) (copy of benchmarks/bench.py's)."""
-    import torch
-
-    if model.fusion is None:
-        return
-    lin1, lin2 = model.fusion.mlp[0], model.fusion.mlp[2]
-    with torch.no_grad():
-        lin1.weight.zero_()
-        lin1.bias.zero_()
-        lin1.weight[0].fill_(1.0 / len(model.scale_slices))
-        lin2.weight.zero_()
-        lin2.bias.zero_()
-        lin2.weight[0, 0] = 3.0
-
 
 
 def _torch_bank_class():
