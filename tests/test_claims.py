@@ -82,3 +82,39 @@ def test_claims_file_from_a_report_folder(tmp_path):
     assert ids["fusion:adaptive_beats_avg"]["paper"] == pytest.approx(89.55 - 80.9)
     assert ids["fusion:adaptive_beats_avg"]["verdict"] == "within noise"
     assert build_claims(tmp_path / "missing") == []
+
+
+def test_ablation_claims_carry_the_seed_aware_verdict_and_paired_refcount_and_fast(tmp_path):
+    rng = np.random.default_rng(5)
+    fusion = tmp_path / "05_ablation_fusion"
+    fusion.mkdir()
+    pair = {"holds": True, "compare": "adaptive vs avg", "diff_pts": 4.0, "ci": [1.0, 7.0], "seeds": [2, 2],
+            "per_seed_diff_pts": [6.0, 2.0], "seed_spread_pts": 5.0, "verdict": "within seed spread"}
+    (fusion / "metrics.json").write_text(json.dumps({"table": [], "split": 1, "trend": {"adaptive_beats_avg": pair},
+                                                     "seeds": {"avg": {"compare": "avg seed 2 vs seed 1",
+                                                                       "diff_pts": 5.0, "ci": [2.0, 8.0]}}}))
+    refc = tmp_path / "06_reference_count"
+    refc.mkdir()
+    few = _pq(rng, {1: ["a", "b"]}, {"a": 0.2, "b": 0.2}, n=200)
+    many = few.copy()
+    many["rot_ok"] = many["rot_ok"] | (rng.random(len(many)) < 0.3)
+    few.to_csv(refc / "per_query_32refs.csv", index=False)
+    many.to_csv(refc / "per_query_512refs.csv", index=False)
+    (refc / "metrics.json").write_text(json.dumps({"table": [
+        {"refs_per_object": 32, "unseen rot_acc": 100 * few["rot_ok"].mean()},
+        {"refs_per_object": 512, "unseen rot_acc": 100 * many["rot_ok"].mean()}]}))
+    fast = tmp_path / "07_fast_vs_greedy"
+    fast.mkdir()
+    few.to_csv(fast / "per_query_greedy.csv", index=False)
+    few.to_csv(fast / "per_query_fast.csv", index=False)
+    (fast / "metrics.json").write_text(json.dumps({"table": [
+        {"method": "greedy", "median s/query": 1.0}, {"method": "fast (converge)", "median s/query": 0.1}],
+        "main_fast_method": "fast (converge)", "agreement_30deg": {}}))
+    ids = {c["id"]: c for c in build_claims(tmp_path)}
+    a = ids["fusion:adaptive_beats_avg"]
+    assert a["verdict"] == "within seed spread" and a["seed_spread_pts"] == 5.0 and a["seeds"] == [2, 2]
+    assert ids["fusion:seed_noise:avg"]["verdict"] == "measured" and ids["fusion:seed_noise:avg"]["ours"] == 5.0
+    r = ids["refcount_accuracy_rises"]
+    assert r["verdict"] == "holds" and r["ci95"][0] > 0 and "paired" in r["claim"]
+    f = ids["fast_minus_greedy"]
+    assert f["ours"] == 0.0 and f["verdict"] == "no difference beyond noise"

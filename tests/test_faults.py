@@ -223,3 +223,33 @@ def test_second_byo_call_renders_and_encodes_nothing(tmp_path, manifest, monkeyp
     other = OrientationNet(ModelConfig(image_size=64)).eval()
     with pytest.raises(AssertionError, match="cached"):
         byo.estimate_rotation(other, entry.mesh.resolve(), qp, **kw)
+
+
+def test_time_of_an_interrupted_notebook_counts_in_its_timing(tmp_path, monkeypatch):
+    """A notebook killed once and rerun reports both attempts' wall time (heartbeat in the state)."""
+    import time as _time
+
+    names = runner.notebooks()
+    monkeypatch.setattr(runner, "REPO_ROOT", tmp_path)
+    monkeypatch.setattr(runner, "HEARTBEAT_S", 0.02)
+    kill = [True]
+
+    def fake_execute(src, dst, parameters, **kw):
+        name = src.rsplit("/", 1)[-1][:-6]
+        if name == names[1]:
+            _time.sleep(0.3)
+            if kill:
+                kill.pop()
+                raise KeyboardInterrupt
+        open(dst, "w").write("{}")
+
+    monkeypatch.setattr("papermill.execute_notebook", fake_execute)
+    with pytest.raises(KeyboardInterrupt):
+        runner.run("smoke", html=False, report=False)
+    state = json.loads((tmp_path / "reports" / "smoke" / runner.STATE_FILE).read_text())
+    assert state[names[1]]["done"] is False and state[names[1]]["seconds"] >= 0.3
+    runner.run("smoke", html=False, report=False)
+    timings = json.loads((tmp_path / "reports" / "smoke" / "timings.json").read_text())
+    assert timings[names[1]] >= 0.6  # 0.3 s killed + 0.3 s rerun
+    state = json.loads((tmp_path / "reports" / "smoke" / runner.STATE_FILE).read_text())
+    assert state[names[1]]["attempts"] == 2 and state[names[1]]["done"] is True

@@ -11,7 +11,8 @@ import pytest
 from helpers.model import ModelConfig
 from helpers.study import _train_key
 from helpers.train import TrainConfig
-from helpers.variants import (Trained, chain, claim, claims_table, parse_scales, variant_config, variant_table)
+from helpers.variants import (COMPONENT_LABELS, Trained, chain, claim, claims_table, parse_scales, seed_differences,
+                               seed_spread, variant_config, variant_table, with_seeds)
 
 
 def _base() -> TrainConfig:
@@ -68,3 +69,68 @@ def test_variant_table_rows():
     assert t.to_dict(orient="records") == [{"variant": "a", "unseen rot_acc": 10.0, "unseen class_acc": 50.0,
                                             "unseen median_err_deg": 80.0, "n_queries": 40, "run": "split1-abc",
                                             "paper": 80.9}]
+
+
+# ---------------------------------------------------------------------------- training seeds
+
+
+def test_with_seeds_gives_seeded_variants_consecutive_seeds_and_keeps_the_others():
+    base = _base()
+    configs = {"avg": variant_config(base, fusion="avg"), "adaptive": base, "softmax": variant_config(base, fusion="softmax")}
+    runs = with_seeds(configs, ["avg", "adaptive"], n_seeds=3)
+    assert [c.seed for c in runs["avg"]] == [0, 1, 2] and [c.seed for c in runs["softmax"]] == [0]
+    assert runs["avg"][1].model.fusion == "avg"  # only the seed changes
+    # The first seed is the unseeded run itself (same cache key as the main model).
+    assert _train_key(runs["adaptive"][0]) == _train_key(base)
+    with pytest.raises(ValueError, match=r"seeded_variants: \['attention'\]"):
+        with_seeds(configs, ["attention"], 2)
+
+
+def test_seed_spread_enters_the_verdict():
+    rng = np.random.default_rng(3)
+    n = 800
+    worse = rng.random(n) < 0.3
+    better = worse | (rng.random(n) < 0.1)          # about +7 points on the same queries
+    noisy = worse ^ (rng.random(n) < 0.05)          # a second seed of `worse`: training noise
+    pq = {"w": [_pq(worse), _pq(noisy)], "b": [_pq(better)]}
+    spread = seed_spread({k: [{"means": {"rot_acc": 100 * t["rot_ok"].mean()}} for t in v] for k, v in pq.items()})
+    assert spread == pytest.approx(100 * abs(noisy.mean() - worse.mean()))
+    c = claim(pq, "w", "b", seed_spread=spread)
+    assert c["ci"][0] > 0 and c["seeds"] == [2, 1] and len(c["per_seed_diff_pts"]) == 2
+    # The difference is that of the seed-averaged accuracies.
+    assert c["diff_pts"] == pytest.approx(100 * (better.mean() - (worse.mean() + noisy.mean()) / 2), abs=0.3)
+    assert c["verdict"] == ("significant" if abs(c["diff_pts"]) > spread else "within seed spread")
+    assert claim(pq, "w", "b", seed_spread=50.0)["verdict"] == "within seed spread"
+    assert claim(pq, "b", "w", seed_spread=0.0)["verdict"] == "significantly reversed"
+    assert claim(pq, "w", "b")["seed_spread_pts"] is None  # not measured: the interval alone
+    d = seed_differences(pq)
+    assert list(d) == ["w"] and d["w"]["diff_pts"] == pytest.approx(100 * (noisy.mean() - worse.mean()), abs=2)
+    t = claims_table({"c": c})
+    assert "seed spread (pts)" in t.columns and t["verdict"][0] == c["verdict"]
+
+
+def test_variant_table_with_seeds_shows_each_seed_and_the_range():
+    res = {"a": [{"means": {"rot_acc": 10.0, "class_acc": 50.0, "median_err_deg": 80.0, "n_queries": 40}},
+                 {"means": {"rot_acc": 14.0, "class_acc": 52.0, "median_err_deg": 70.0, "n_queries": 40}}],
+           "b": [{"means": {"rot_acc": 20.0, "class_acc": 60.0, "median_err_deg": 60.0, "n_queries": 40}}]}
+    tr = {"a": [Trained(None, Path("/x/split1-s0"), {}), Trained(None, Path("/x/split1-s1"), {})],
+          "b": [Trained(None, Path("/x/split1-b"), {})]}
+    t = variant_table(tr, res).set_index("variant")
+    assert t.loc["a", "unseen rot_acc"] == 12.0 and t.loc["a", "seed range (pts)"] == 4.0
+    assert t.loc["a", "rot_acc per seed"] == "10.0, 14.0" and t.loc["a", "run"] == "split1-s0, split1-s1"
+    assert t.loc["b", "seeds"] == 1 and pd.isna(t.loc["b", "seed range (pts)"])
+
+
+def test_seeded_variants_are_checked_before_any_work():
+    from helpers.params import ParameterError, check_parameters
+
+    with pytest.raises(ParameterError, match="seeded_variants"):
+        check_parameters("05_ablation_fusion", {"seeded_variants": ["attention"]})
+    with pytest.raises(ParameterError, match="seeded_variants"):
+        check_parameters("08_components", {"seeded_variants": ["LN on"]})
+    with pytest.raises(ParameterError, match="n_seeds"):
+        check_parameters("04_ablation_scales", {"n_seeds": 0})
+    with pytest.raises(ParameterError, match="test_queries"):
+        check_parameters("07_fast_vs_greedy", {"test_queries": 99})  # smoke renders 4 per object
+    assert COMPONENT_LABELS == ("LN off, wInfoNCE off", "LN off, wInfoNCE on", "LN on, wInfoNCE off",
+                                "LN on, wInfoNCE on")

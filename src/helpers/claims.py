@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from . import paper
+from .metrics import paired_difference
 from .fileio import atomic_write_text
 
 N_BOOT = 2000
@@ -97,11 +98,24 @@ def diff_verdict(ci: list[float]) -> str:
 
 
 def record(id_: str, claim: str, paper_value: float | None, ours: float | None, ci95: list[float] | None,
-           verdict: str) -> dict[str, Any]:
-    """One claim record (numbers rounded to 0.01)."""
+           verdict: str, **extra: Any) -> dict[str, Any]:
+    """One claim record (numbers rounded to 0.01); ``extra`` fields (e.g. the seed spread) follow."""
     r = None if ours is None else round(float(ours), 2)
     ci = None if ci95 is None else [round(float(v), 2) for v in ci95]
-    return {"id": id_, "claim": claim, "paper": paper_value, "ours": r, "ci95": ci, "verdict": verdict}
+    return {"id": id_, "claim": claim, "paper": paper_value, "ours": r, "ci95": ci, "verdict": verdict, **extra}
+
+
+# verdicts of helpers.variants.claim -> claim-record verdicts
+_PAIR_VERDICT = {"significant": "holds", "significantly reversed": "reversed",
+                 "within seed spread": "within seed spread", "within noise": "within noise"}
+
+
+def _round(v: Any) -> Any:
+    if isinstance(v, float):
+        return round(v, 2)
+    if isinstance(v, list):
+        return [_round(x) for x in v]
+    return v
 
 
 def _read_csv(path: Path) -> pd.DataFrame | None:
@@ -185,8 +199,15 @@ def ablation_claims(d: Path, prefix: str, paper_values: dict[str, float] | None 
             if paper_values and better in paper_values and worse in paper_values:
                 pv = round(paper_values[better] - paper_values[worse], 2)
             cid = f"{prefix}:{key}" if len(pairs) == 1 else f"{prefix}:{key}:{better}>{worse}"
+            # Older metrics (no seeds) carry only the query interval; newer ones the seed-aware verdict.
+            verdict = _PAIR_VERDICT.get(p.get("verdict"), diff_verdict(p["ci"])) if "seeds" in p \
+                else diff_verdict(p["ci"])
+            extra = {k: _round(p[k]) for k in ("seeds", "per_seed_diff_pts", "seed_spread_pts") if k in p}
             out.append(record(cid, f"{better} beats {worse} (split #{m.get('split', 1)} unseen Rota. Acc., points, paired)",
-                              pv, p["diff_pts"], p["ci"], diff_verdict(p["ci"])))
+                              pv, p["diff_pts"], p["ci"], verdict, **extra))
+    for label, c in (m.get("seeds") or {}).items():
+        out.append(record(f"{prefix}:seed_noise:{label}", f"training noise: {c['compare']} (split #{m.get('split', 1)} "
+                          "unseen Rota. Acc., points, paired)", None, c["diff_pts"], c["ci"], "measured"))
     return out
 
 
@@ -206,6 +227,14 @@ def fast_claims(d: Path) -> list[dict]:
     t = pd.DataFrame(m["table"])
     g, f = t.iloc[0], t[t["method"] == key].iloc[0] if key in set(t["method"]) else t.iloc[1]
     fg = paper.FAST_VS_GREEDY
+    pg, pf = _read_csv(d / "per_query_greedy.csv"), _read_csv(d / "per_query_fast.csv")
+    if pg is not None and pf is not None:
+        c = paired_difference(pg, pf)
+        out.append(record("fast_minus_greedy", f"fast retrieval ({key}) keeps greedy search's unseen Rota. Acc. "
+                          "(fast minus greedy, points, paired)",
+                          round(fg["fast"]["rot_acc"] - fg["greedy"]["rot_acc"], 2), c["diff_pts"], c["ci"],
+                          "fast loses accuracy" if c["ci"][1] < 0 else "fast gains accuracy" if c["ci"][0] > 0
+                          else "no difference beyond noise"))
     out.append(record("fast_speedup", "fast retrieval is faster than greedy search (median s/query ratio)",
                       round(fg["greedy"]["seconds_per_query"] / fg["fast"]["seconds_per_query"], 2),
                       g["median s/query"] / f["median s/query"], None,
@@ -219,6 +248,13 @@ def reference_count_claims(d: Path) -> list[dict]:
         return []
     t = pd.DataFrame(m["table"])
     lo, hi = t.iloc[0], t.iloc[-1]
+    a = _read_csv(d / f"per_query_{lo['refs_per_object']:.0f}refs.csv")
+    b = _read_csv(d / f"per_query_{hi['refs_per_object']:.0f}refs.csv")
+    if a is not None and b is not None:  # same queries at both counts: paired interval
+        c = paired_difference(a, b)
+        return [record("refcount_accuracy_rises", f"Rota. Acc. rises from {lo['refs_per_object']:.0f} to "
+                       f"{hi['refs_per_object']:.0f} references per object (points, paired)", None,
+                       c["diff_pts"], c["ci"], diff_verdict(c["ci"]))]
     return [record("refcount_accuracy_rises", f"Rota. Acc. rises from {lo['refs_per_object']:.0f} to "
                    f"{hi['refs_per_object']:.0f} references per object (points)", None,
                    hi["unseen rot_acc"] - lo["unseen rot_acc"], None,
@@ -237,8 +273,13 @@ SECTIONS: list[tuple[str, Callable[[Path], list[dict]]]] = [
 
 
 def _components_by_label() -> dict[str, float]:
-    return {f"LN={'on' if ln else 'off'}, wInfoNCE={'on' if wl else 'off'}": v
-            for (ln, wl), v in paper.COMPONENTS_SPLIT1.items()}
+    from .variants import component_label
+
+    out = {}
+    for (ln, wl), v in paper.COMPONENTS_SPLIT1.items():
+        out[component_label(ln, wl)] = v
+        out[component_label(ln, wl).replace(" o", "=o")] = v  # labels of reports written before 2026-11-30
+    return out
 
 
 def build_claims(base: Path) -> list[dict]:

@@ -24,7 +24,7 @@ _MIN_INT = {
     "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 1, "fps_k": 1,
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
-    "occluded_queries": 0, "eval_refs": 0, "coarse_k": 0, "refine_objects": 1,
+    "occluded_queries": 0, "eval_refs": 0, "coarse_k": 0, "refine_objects": 1, "n_seeds": 1, "test_queries": 0,
 }
 _CHOICES = {
     "lr_schedule": ("step", "cosine"),
@@ -78,6 +78,11 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         raise _err(notebook, "scales", "'global' or a comma list of 32/16/13", P["scales"])
     if "variants" in P:
         _check_variants(notebook, P["variants"])
+    if "seeded_variants" in P:
+        _check_seeded(notebook, P["seeded_variants"], P.get("variants"))
+    if "test_queries" in P and P.get("n_test_queries") is not None and P["test_queries"] > P["n_test_queries"]:
+        raise _err(notebook, "test_queries", f"0 (all) or at most n_test_queries={P['n_test_queries']}",
+                   P["test_queries"])
     if "reference_counts" in P:
         rc, n = P["reference_counts"], P.get("n_references")
         if not rc or any(c < 1 for c in rc) or (n is not None and max(rc) > n):
@@ -107,6 +112,16 @@ def _check_variants(notebook: str, variants: list) -> None:
         return
     if bad:
         raise _err(notebook, "variants", f"{want}; bad: {bad}", variants)
+
+
+def _check_seeded(notebook: str, seeded: list, variants: list | None) -> None:
+    """Seeded variants must be variants of this notebook (components: the four labels of 08)."""
+    from .variants import COMPONENT_LABELS
+
+    known = list(variants) if variants is not None else list(COMPONENT_LABELS)
+    if (not all(isinstance(v, str) for v in seeded) or len(set(seeded)) != len(seeded)
+            or not set(seeded) <= set(known)):
+        raise _err(notebook, "seeded_variants", f"distinct labels among {known}", seeded)
 
 
 def _check_configs(notebook: str, P: dict[str, Any]) -> None:

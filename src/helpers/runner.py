@@ -18,6 +18,7 @@ import hashlib
 import json
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -29,8 +30,9 @@ from .params import NOTEBOOK_DIR, ParameterError, check_mapping, declared_parame
 from .paths import REPO_ROOT
 
 PRESET_DIR = REPO_ROOT / "presets"
-PRESETS = ("smoke", "quick", "paper")
+PRESETS = ("smoke", "quick", "standard", "paper")
 STATE_FILE = "runner_state.json"
+HEARTBEAT_S = 30.0  # how often a running notebook's elapsed time is saved (lost on a kill: at most this much)
 
 
 def notebooks() -> list[str]:
@@ -109,21 +111,28 @@ def run(preset: str, only: list[str] | None = None, html: bool = True, report: b
     for n in names:
         key = run_key(params[n])
         dst = out / f"{n}.ipynb"
-        if state.get(n, {}).get("key") == key and dst.exists():
+        prev = state.get(n, {})
+        if prev.get("key") == key and prev.get("done", True) and dst.exists():
             print(f"[runner] {preset}: {n} finished earlier with the same parameters and code "
-                  f"({state[n]['seconds']:.0f} s); skipped (--restart reruns it)", flush=True)
-            timings[n] = state[n]["seconds"]
+                  f"({prev['seconds']:.0f} s); skipped (--restart reruns it)", flush=True)
+            timings[n] = prev["seconds"]
             continue
-        state.pop(n, None)
+        # Time spent in interrupted attempts of this same notebook counts towards its wall time,
+        # so a run resumed after a kill reports what it really cost (not only the last attempt).
+        earlier = float(prev.get("seconds", 0.0)) if prev.get("key") == key and not prev.get("done", True) else 0.0
+        attempts = int(prev.get("attempts", 0)) + 1 if earlier else 1
+        state[n] = {"key": key, "seconds": earlier, "done": False, "attempts": attempts}
         atomic_write_json(state_path, state)
         t0 = time.perf_counter()
-        print(f"[runner] {preset}: {n}", flush=True)
-        pm.execute_notebook(str(NOTEBOOK_DIR / f"{n}.ipynb"), str(dst), parameters=params[n],
-                            cwd=str(NOTEBOOK_DIR), progress_bar=True, kernel_name="python3")
-        if html:
-            export_html(dst)
-        timings[n] = time.perf_counter() - t0
-        state[n] = {"key": key, "seconds": timings[n]}
+        print(f"[runner] {preset}: {n}" + (f" (attempt {attempts}; {earlier:.0f} s spent earlier)" if earlier else ""),
+              flush=True)
+        with _Heartbeat(state_path, state, n, earlier, t0):
+            pm.execute_notebook(str(NOTEBOOK_DIR / f"{n}.ipynb"), str(dst), parameters=params[n],
+                                cwd=str(NOTEBOOK_DIR), progress_bar=True, kernel_name="python3")
+            if html:
+                export_html(dst)
+        timings[n] = earlier + time.perf_counter() - t0
+        state[n] = {"key": key, "seconds": timings[n], "done": True, "attempts": attempts}
         atomic_write_json(out / "timings.json", timings)
         atomic_write_json(state_path, state)
     if report:
@@ -131,6 +140,32 @@ def run(preset: str, only: list[str] | None = None, html: bool = True, report: b
 
         build_report(preset)
     return out
+
+
+class _Heartbeat:
+    """Saves a running notebook's elapsed seconds into the runner state every HEARTBEAT_S."""
+
+    def __init__(self, path: Path, state: dict, name: str, earlier: float, t0: float) -> None:
+        self.path, self.state, self.name, self.earlier, self.t0 = path, state, name, earlier, t0
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, name="runner-heartbeat", daemon=True)
+
+    def _save(self) -> None:
+        self.state[self.name]["seconds"] = self.earlier + time.perf_counter() - self.t0
+        atomic_write_json(self.path, self.state)
+
+    def _loop(self) -> None:
+        while not self.stop.wait(HEARTBEAT_S):
+            self._save()
+
+    def __enter__(self) -> "_Heartbeat":
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop.set()
+        self.thread.join(timeout=10)
+        self._save()  # also when the notebook failed: a rerun then counts this attempt's time
 
 
 def export_html(nb_path: Path) -> Path:

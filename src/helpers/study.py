@@ -8,7 +8,7 @@ under ``<cache>/runs``) and the same cached reference features.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -120,6 +120,16 @@ def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bo
     for (kind, n, _), vs in zip(plan, sets):
         getattr(data, kind)[n] = vs
     return data
+
+
+def cap_test_queries(data: StudyData, k: int) -> StudyData:
+    """``data`` with only the first ``k`` test queries per object (0: all); the other sets are
+    shared. The first k of a rendered set are themselves a random sample (rotations and
+    backgrounds are drawn independently per query), so a notebook can evaluate fewer queries
+    than notebook 01 rendered for the ablations."""
+    if not k:
+        return data
+    return replace(data, test_q={n: v if k >= len(v) else v.subset(np.arange(k)) for n, v in data.test_q.items()})
 
 
 # ------------------------------------------------------------------ training
