@@ -126,13 +126,21 @@ def _claims(claims: list[dict]) -> list[str]:
     def num(v: Any) -> str:
         return "—" if v is None else f"{v:.2f}" if abs(v) < 1.5 else f"{v:.1f}"
 
+    seeded = any(c.get("seed_spread_pts") is not None for c in claims)
     out = ["## Claims (`claims.json`)", "",
            "Each row is computed from this run's files; 95 % intervals are bootstrap intervals over queries "
-           "(resampled within objects; paired where two methods answer the same queries).", "",
-           "| id | claim | ours | 95 % CI | paper | verdict |", "|---|---|---:|---|---:|---|"]
+           "(resampled within objects; paired where two methods answer the same queries)."
+           + (" Ablation rows also carry the training-seed spread: the largest seed-to-seed range of Rota. Acc. "
+              "among the variants trained with several seeds in that notebook (`seed_noise` rows give each "
+              "seed-to-seed difference with its own interval); an ablation claim **holds** only if its interval "
+              "excludes 0 AND the difference exceeds the seed spread (\"within seed spread\" when only the "
+              "interval excludes 0)." if seeded else ""), "",
+           "| id | claim | ours | 95 % CI | seed spread | paper | verdict |", "|---|---|---:|---|---:|---:|---|"]
     for c in claims:
         ci = "—" if c["ci95"] is None else f"[{num(c['ci95'][0])}, {num(c['ci95'][1])}]"
-        out.append(f"| `{c['id']}` | {c['claim']} | {num(c['ours'])} | {ci} | {num(c['paper'])} | {c['verdict']} |")
+        sp = c.get("seed_spread_pts")
+        out.append(f"| `{c['id']}` | {c['claim']} | {num(c['ours'])} | {ci} | {'—' if sp is None else num(sp)} | "
+                   f"{num(c['paper'])} | {c['verdict']} |")
     return out + [""]
 
 
@@ -160,7 +168,7 @@ def _train(d: Path) -> list[str]:
     run = (_load(d / "run.json") or {}).get("parameters") or {}
     budget = (f"- training budget: {hist[-1]['global_step']:,} optimiser steps of {run.get('batch_size', '?')} queries "
               f"in {sum(h['seconds'] for h in hist):.0f} s (paper: 200 epochs over every real training image, "
-              f"batch 16); the quick budget is meant for trends and plumbing, not the paper's accuracy"
+              f"batch 16); a CPU budget for trends, not the paper's accuracy"
               if hist else "- training budget: n/a")
     return ["## 2 · Training (split #%d)" % m["split"], "",
             budget,
@@ -230,19 +238,31 @@ def _ablation(d: Path, title: str, fig: str, claim: str) -> list[str]:
             out.append(f"- {k.replace('_', ' ')}: {_yes(v)}")
         elif isinstance(v, dict) and "holds" in v:
             out.append(f"- {k.replace('_', ' ')}: {_yes(v['holds'])} in the point estimate{_noise(v)}")
+    for label, c in (m.get("seeds") or {}).items():
+        out.append(f"- training noise, {c['compare']}: {c['diff_pts']:+.1f} pts, 95 % CI "
+                   f"[{c['ci'][0]:+.1f}, {c['ci'][1]:+.1f}]")
     if m.get("noise"):
         out += ["", f"_Noise: {m['noise']}._"]
     out += ["", f"![{title}]({d.name}/{fig})", ""]
     return out
 
 
+def _seeds(p: dict) -> str:
+    """"; per seed +2.0/+4.1, seed spread 3.0" where a pair carries seed information."""
+    if p.get("seed_spread_pts") is None:
+        return ""
+    per = "/".join(f"{d:+.1f}" for d in p.get("per_seed_diff_pts") or [])
+    return f"; per seed {per}, seed spread {p['seed_spread_pts']:.1f}"
+
+
 def _noise(v: dict) -> str:
     """", +3.1 pts, 95 % CI [-2.0, 8.1]: within noise" for a claim dict (or its pairs)."""
     if "pairs" in v:
-        parts = [f"{p['compare']} {p['diff_pts']:+.1f} [{p['ci'][0]:+.1f}, {p['ci'][1]:+.1f}]" for p in v["pairs"]]
+        parts = [f"{p['compare']} {p['diff_pts']:+.1f} [{p['ci'][0]:+.1f}, {p['ci'][1]:+.1f}]{_seeds(p)}"
+                 for p in v["pairs"]]
         return f" ({'; '.join(parts)} pts, 95 % CI): **{v['verdict']}**"
-    return (f" ({v['compare']}: {v['diff_pts']:+.1f} pts, 95 % CI [{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}]): "
-            f"**{v['verdict']}**")
+    return (f" ({v['compare']}: {v['diff_pts']:+.1f} pts, 95 % CI [{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}]"
+            f"{_seeds(v)}): **{v['verdict']}**")
 
 
 def _fast(d: Path) -> list[str]:
