@@ -96,10 +96,16 @@ def test_seed_spread_enters_the_verdict():
     spread = seed_spread({k: [{"means": {"rot_acc": 100 * t["rot_ok"].mean()}} for t in v] for k, v in pq.items()})
     assert spread == pytest.approx(100 * abs(noisy.mean() - worse.mean()))
     c = claim(pq, "w", "b", seed_spread=spread)
-    assert c["ci"][0] > 0 and c["seeds"] == [2, 1] and len(c["per_seed_diff_pts"]) == 2
-    # The difference is that of the seed-averaged accuracies.
-    assert c["diff_pts"] == pytest.approx(100 * (better.mean() - (worse.mean() + noisy.mean()) / 2), abs=0.3)
+    # Matched seeds: the one-seed variant meets only the first seed of the other.
+    assert c["ci"][0] > 0 and c["seeds"] == [2, 1] and c["matched_seeds"] == 1 and len(c["per_seed_diff_pts"]) == 1
+    assert c["diff_pts"] == pytest.approx(100 * (better.mean() - worse.mean()), abs=0.3)
     assert c["verdict"] == ("significant" if abs(c["diff_pts"]) > spread else "within seed spread")
+    # Two seeds on both sides: the difference of the accuracies averaged over the matched seeds.
+    better2 = noisy | (rng.random(n) < 0.1)
+    c2 = claim({"w": [_pq(worse), _pq(noisy)], "b": [_pq(better), _pq(better2)]}, "w", "b")
+    assert c2["matched_seeds"] == 2 and len(c2["per_seed_diff_pts"]) == 2
+    want = 100 * ((better.mean() + better2.mean()) - (worse.mean() + noisy.mean())) / 2
+    assert c2["diff_pts"] == pytest.approx(want, abs=0.3)
     assert claim(pq, "w", "b", seed_spread=50.0)["verdict"] == "within seed spread"
     assert claim(pq, "b", "w", seed_spread=0.0)["verdict"] == "significantly reversed"
     assert claim(pq, "w", "b")["seed_spread_pts"] is None  # not measured: the interval alone

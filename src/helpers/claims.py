@@ -202,7 +202,7 @@ def ablation_claims(d: Path, prefix: str, paper_values: dict[str, float] | None 
             # Older metrics (no seeds) carry only the query interval; newer ones the seed-aware verdict.
             verdict = _PAIR_VERDICT.get(p.get("verdict"), diff_verdict(p["ci"])) if "seeds" in p \
                 else diff_verdict(p["ci"])
-            extra = {k: _round(p[k]) for k in ("seeds", "per_seed_diff_pts", "seed_spread_pts") if k in p}
+            extra = {k: _round(p[k]) for k in ("seeds", "matched_seeds", "per_seed_diff_pts", "seed_spread_pts") if k in p}
             out.append(record(cid, f"{better} beats {worse} (split #{m.get('split', 1)} unseen Rota. Acc., points, paired)",
                               pv, p["diff_pts"], p["ci"], verdict, **extra))
     for label, c in (m.get("seeds") or {}).items():

@@ -18,8 +18,8 @@ paired and their difference gets a paired bootstrap interval
 Two sources of noise, reported side by side:
 
 - query resampling: the paired bootstrap interval ``ci`` of the difference of the
-  seed-averaged accuracies (a query counts as the mean of its 0/1 outcomes over
-  a variant's training seeds);
+  accuracies averaged over the training seeds both variants have (seed i against
+  seed i: same initialisation draw, batches and augmentation);
 - training noise: variants in ``seeded`` are trained with several seeds
   (``seed``, ``seed + 1``, ...); the *seed spread* is the largest
   seed-to-seed range of Rota. Acc. (points, same queries) among them.
@@ -46,7 +46,7 @@ from .tables import write_table
 
 NOISE_NOTE = ("claims compare object-averaged Rota. Acc. of two variants on the same queries; ci is a "
               "paired bootstrap 95 % interval (queries resampled within objects) of the difference of "
-              "seed-averaged accuracies; seed_spread is the largest seed-to-seed range of a variant trained "
+              "accuracies averaged over matched training seeds; seed_spread is the largest seed-to-seed range of a variant trained "
               "with several seeds; a verdict is significant only beyond both")
 
 
@@ -213,20 +213,24 @@ def claim(per_query: dict[str, Any], worse: str, better: str, seed_spread: float
     """Paper claim "``better`` beats ``worse``" on our queries: point estimate, paired 95 % interval
     over queries, and the training-seed spread.
 
-    ``per_query`` maps labels to one per-query table or a list of them (one per seed); the
-    difference is that of the seed-averaged accuracies. ``holds`` is the point estimate
-    (better > worse); ``verdict`` is "significant" / "significantly reversed" when the
-    interval excludes 0 and |diff| exceeds ``seed_spread`` (the measured seed-to-seed range,
-    points; None: not measured, interval only), "within seed spread" when only the interval
-    excludes 0, else "within noise". ``per_seed_diff_pts`` pairs seed i with seed i (a
-    one-seed variant with every seed of the other). None when a variant was not run.
+    ``per_query`` maps labels to one per-query table or a list of them (one per training seed,
+    in seed order). Seeds are matched: seed i of one variant is compared with seed i of the
+    other (same initialisation draw, batches and augmentation), over the seeds both have, and
+    the difference is that of the accuracies averaged over those matched seeds; a variant's
+    extra seeds never enter a comparison with a one-seed variant (that would mix seed luck
+    into the difference). ``holds`` is the point estimate (better > worse); ``verdict`` is
+    "significant" / "significantly reversed" when the interval excludes 0 and |diff| exceeds
+    ``seed_spread`` (the largest seed-to-seed range of one variant's Rota. Acc., points; None:
+    not measured, interval only), "within seed spread" when only the interval excludes 0,
+    else "within noise". ``per_seed_diff_pts`` lists the matched per-seed differences.
+    None when a variant was not run.
     """
     if worse not in per_query or better not in per_query:
         return None
     a, b = _as_list(per_query[worse]), _as_list(per_query[better])
-    c = paired_difference(_seed_mean(a), _seed_mean(b))
-    n = max(len(a), len(b))
-    per_seed = [paired_difference(a[min(i, len(a) - 1)], b[min(i, len(b) - 1)])["diff_pts"] for i in range(n)]
+    n = min(len(a), len(b))
+    c = paired_difference(_seed_mean(a[:n]), _seed_mean(b[:n]))
+    per_seed = [paired_difference(a[i], b[i])["diff_pts"] for i in range(n)]
     beyond_seeds = seed_spread is None or abs(c["diff_pts"]) > seed_spread
     if c["verdict"] == "within noise":
         verdict = "within noise"
@@ -235,8 +239,8 @@ def claim(per_query: dict[str, Any], worse: str, better: str, seed_spread: float
     else:
         verdict = "significant" if c["verdict"] == "b > a" else "significantly reversed"
     return {"holds": bool(c["diff_pts"] > 0), "compare": f"{better} vs {worse}", **c,
-            "seeds": [len(a), len(b)], "per_seed_diff_pts": per_seed, "seed_spread_pts": seed_spread,
-            "verdict": verdict}
+            "seeds": [len(a), len(b)], "matched_seeds": n, "per_seed_diff_pts": per_seed,
+            "seed_spread_pts": seed_spread, "verdict": verdict}
 
 
 def chain(per_query: dict[str, Any], order: list[str], seed_spread: float | None = None) -> dict | None:
