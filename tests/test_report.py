@@ -60,3 +60,24 @@ def test_tables_format_numbers_by_magnitude():
     row = [c.strip() for c in lines[2].split("|")[1:-1]]
     assert row == ["#1", "32", "4.2", "0.021", "True"]
     assert "512" in lines[3] and "0.610" in lines[3]
+
+
+def test_report_shows_seed_spread_and_a_reexecution(tmp_path):
+    d = tmp_path / "z" / "05_ablation_fusion"
+    d.mkdir(parents=True)
+    c = {"holds": True, "compare": "adaptive vs avg", "diff_pts": 3.0, "ci": [1.0, 5.0], "seeds": [2, 2],
+         "matched_seeds": 2, "per_seed_diff_pts": [2.0, 4.0], "seed_spread_pts": 5.9, "verdict": "within seed spread"}
+    (d / "metrics.json").write_text(json.dumps({"table": [{"variant": "avg", "unseen rot_acc": 1.0}], "split": 1,
+                                                "trend": {"adaptive_beats_avg": c},
+                                                "seeds": {"avg": {"compare": "avg seed 2 vs seed 1", "diff_pts": -5.6,
+                                                                  "ci": [-7.9, -3.2]}}}))
+    (d / "run.json").write_text(json.dumps({"git": {"commit": "abc"}}))
+    (tmp_path / "z" / "timings.json").write_text(json.dumps({"05_ablation_fusion": 1464.0}))
+    (tmp_path / "z" / "reexecuted.json").write_text(json.dumps(
+        {"commit": "def", "reason": "matched seeds", "notebooks": {"05_ablation_fusion": 61.0}}))
+    rep = build_report("z", root=tmp_path).read_text()
+    assert "per seed +2.0/+4.0, seed spread 5.9): **within seed spread**" in rep
+    assert "training noise, avg seed 2 vs seed 1: -5.6 pts" in rep
+    assert "| `fusion:adaptive_beats_avg` | adaptive beats avg" in rep and "| 5.9 |" in rep
+    assert "re-executed after the timed run" in rep and "05_ablation_fusion 61 s" in rep
+    assert "| 05_ablation_fusion | 1464 |" in rep  # the timed run's wall time stays in the table

@@ -111,6 +111,12 @@ def _provenance(base: Path) -> list[str]:
            f"{', GPU ' + dev['gpu'] if dev.get('gpu') else ''}){fusion_impl}; GL `{gl}`",
            "- packages: " + ", ".join(f"{k} {v}" for k, v in (r.get("packages") or {}).items() if v),
            f"- seed {r.get('seed')}; each notebook's parameters are in `<notebook>/run.json`", ""]
+    rex = _load(base / "reexecuted.json")
+    if rex:
+        out += [f"- re-executed after the timed run, from its caches (same trained models and renders), at commit "
+                f"`{rex.get('commit')}`: {', '.join(rex.get('notebooks', {}))} ({rex.get('reason')}); the table below "
+                f"keeps the timed run's wall times, the re-executions took "
+                + ", ".join(f"{k} {v:.0f} s" for k, v in rex.get("notebooks", {}).items()), ""]
     if timings:
         out += ["| notebook | seconds |", "|---|---|"]
         out += [f"| {k} | {v:.0f} |" for k, v in timings.items()]
