@@ -18,8 +18,7 @@ import pandas as pd
 
 from . import paper
 from .baselines import HogModel
-from .study import StudyData, evaluate, reference_bank
-from .views import ObjectViews
+from .study import StudyData, evaluate, first, reference_bank
 
 
 def search_settings(method: str, k_ac: int, fps_k: int) -> dict[str, Any]:
@@ -29,11 +28,6 @@ def search_settings(method: str, k_ac: int, fps_k: int) -> dict[str, Any]:
     if method == "greedy":
         return {"method": "greedy"}
     raise ValueError(f"eval_method: expected 'fast' or 'greedy', got {method!r}")
-
-
-def first(views: ObjectViews, k: int) -> ObjectViews:
-    """The first ``k`` views (0 = all): a smaller, still random, sample of a query set."""
-    return views if not k or k >= len(views) else views.subset(np.arange(k))
 
 
 def evaluate_split(model: Any, data: StudyData, split: int, search: dict[str, Any], seen_queries: int = 0,

@@ -122,6 +122,11 @@ def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bo
     return data
 
 
+def first(views: ObjectViews, k: int) -> ObjectViews:
+    """The first ``k`` views (0 = all): a smaller, still random, sample of a query set."""
+    return views if not k or k >= len(views) else views.subset(np.arange(k))
+
+
 def cap_test_queries(data: StudyData, k: int) -> StudyData:
     """``data`` with only the first ``k`` test queries per object (0: all); the other sets are
     shared. The first k of a rendered set are themselves a random sample (rotations and
@@ -129,7 +134,7 @@ def cap_test_queries(data: StudyData, k: int) -> StudyData:
     than notebook 01 rendered for the ablations."""
     if not k:
         return data
-    return replace(data, test_q={n: v if k >= len(v) else v.subset(np.arange(k)) for n, v in data.test_q.items()})
+    return replace(data, test_q={n: first(v, k) for n, v in data.test_q.items()})
 
 
 # ------------------------------------------------------------------ training

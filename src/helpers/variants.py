@@ -182,13 +182,14 @@ def variant_table(trained: dict[str, Any], results: dict[str, Any],
     """One row per variant: unseen Rota./Class. Acc. (%, mean over its seeds), median error,
     queries, seeds with their Rota. Acc. and range, run folders, extras."""
     rows = []
+    seeded = any(len(_as_list(v)) > 1 for v in results.values())
     for label, rs in results.items():
         rs, ts = _as_list(rs), _as_list(trained[label])
         mean = {k: float(np.mean([r["means"][k] for r in rs])) for k in ("rot_acc", "class_acc", "median_err_deg")}
         accs = [r["means"]["rot_acc"] for r in rs]
         row = {"variant": label, "unseen rot_acc": mean["rot_acc"], "unseen class_acc": mean["class_acc"],
                "unseen median_err_deg": mean["median_err_deg"], "n_queries": rs[0]["means"]["n_queries"]}
-        if any(len(_as_list(v)) > 1 for v in results.values()):
+        if seeded:
             row.update({"seeds": len(rs), "rot_acc per seed": ", ".join(f"{a:.1f}" for a in accs),
                         "seed range (pts)": float(max(accs) - min(accs)) if len(accs) > 1 else None})
         row["run"] = ", ".join(Path(t.run).name for t in ts)
