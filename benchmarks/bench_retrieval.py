@@ -218,6 +218,12 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
             log(f"{key}: c2f {c2f['s_per_query_median']:.3f} s/query, "
                 f"{c2f['comparisons_per_query_median']:.0f} comparisons")
             wait_quiet()
+            fast_search(warm, bank, scorer, halving=True, **c2f_kw)  # warm-up
+            hp, c2fh = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, halving=True,
+                                     **c2f_kw)
+            log(f"{key}: c2f halving {c2fh['s_per_query_median']:.3f} s/query, "
+                f"{c2fh['comparisons_per_query_median']:.0f} comparisons")
+            wait_quiet()
             gp, greedy = _search_timed(greedy_search, queries[:cfg.retr_greedy_queries], bank, scorer, group=1024)
             log(f"{key}: greedy {greedy['s_per_query_median']:.2f} s/query")
             n_common = min(len(fp), len(gp))
@@ -245,7 +251,13 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
                                                                       for a, b in zip(cp, fp)])) if cp else None,
                 "synthetic_agreement_c2f_greedy": float(np.mean(c2f_greedy)) if c2f_greedy else None,
                 "c2f_agreement_queries": {"fast": len(c2f_fast), "greedy": len(c2f_greedy)},
-                "warmup": "one untimed fast and one untimed c2f query before their timed ones (c2f on the "
+                "c2f_halving": c2fh,
+                "speedup_greedy_over_c2f_halving": greedy["s_per_query_median"] / c2fh["s_per_query_median"],
+                "comparison_ratio_greedy_over_c2f_halving": (cfg.retr_objects * r)
+                / c2fh["comparisons_per_query_median"],
+                "synthetic_agreement_c2f_halving_fast": float(np.mean([_same(a, b) for a, b in zip(hp, fp)])),
+                "synthetic_agreement_c2f_halving_greedy": float(np.mean([_same(a, b) for a, b in zip(hp, gp)])),
+                "warmup": "one untimed query before each of fast, c2f and c2f halving (c2f on the "
                           "same queries as fast); greedy has no separate warm-up "
                           "(the model is warm from the fast queries, the page cache from read_through)",
                 "memory_after": memory_snapshot()}
@@ -327,6 +339,7 @@ def bench_real_agreement(cfg: BenchConfig, checkpoint: str | None = None, tmp_ro
     gp, greedy = _search_timed(greedy_search, q_list, bank, scorer, group=1024)
     fp, fast = _search_timed(fast_search, q_list, bank, scorer, **scaled)
     cp, c2f = _search_timed(fast_search, q_list, bank, scorer, **scaled_c2f)
+    hp, c2fh = _search_timed(fast_search, q_list, bank, scorer, halving=True, **scaled_c2f)
 
     # Records need each query's index within its object.
     idx_in_obj, seen = [], {}
@@ -361,6 +374,10 @@ def bench_real_agreement(cfg: BenchConfig, checkpoint: str | None = None, tmp_ro
             "agreement_c2f_greedy_same_reference": float(np.mean([_same(a, b) for a, b in zip(cp, gp)])),
             "agreement_c2f_greedy_same_object": float(np.mean([a.obj_index == b.obj_index for a, b in zip(cp, gp)])),
             "speedup_greedy_over_c2f": greedy["s_per_query_median"] / c2f["s_per_query_median"],
+            "c2f_halving": {**c2fh, **evaluate(hp)},
+            "agreement_c2f_halving_fast_same_reference": float(np.mean([_same(a, b) for a, b in zip(hp, fp)])),
+            "agreement_c2f_halving_greedy_same_reference": float(np.mean([_same(a, b) for a, b in zip(hp, gp)])),
+            "speedup_greedy_over_c2f_halving": greedy["s_per_query_median"] / c2fh["s_per_query_median"],
             "agreement_same_reference": float(np.mean(same_ref)),
             "agreement_same_object": float(np.mean(same_obj)),
             "speedup_greedy_over_fast": greedy["s_per_query_median"] / fast["s_per_query_median"],

@@ -101,12 +101,16 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
         # With refine_objects (3) >= K (2) objects every anchor is scored: c2f is the authors' search.
         assert b["synthetic_agreement_c2f_fast"] == 1.0
         assert b["c2f"]["comparisons_per_query_all"] == b["fast"]["comparisons_per_query_all"]
+        _positive(b["c2f_halving"], "s_per_query_median", "comparisons_per_query_median")
+        assert b["synthetic_agreement_c2f_halving_fast"] == 1.0  # 2 objects: halving keeps both too
+        assert b["c2f_halving"]["comparisons_per_query_all"] == b["fast"]["comparisons_per_query_all"]
     assert rs["c2f_params"]["coarse_k"] == 64 and rs["c2f_params"]["refine_objects"] == 3
     assert rs["write"]["bytes_on_disk"] == rs["write"]["bytes_from_shape"] == 2 * 80 * C * L * 2
 
     rr = res["retrieval_real"]
     assert 0.0 <= rr["agreement_same_reference"] <= 1.0 and rr["n_queries"] == 2
     assert rr["agreement_c2f_fast_same_reference"] == 1.0  # 2 objects <= refine_objects, as above
+    assert rr["agreement_c2f_halving_fast_same_reference"] == 1.0
     assert 0.0 <= rr["agreement_c2f_greedy_same_reference"] <= 1.0
     assert rr["c2f_params"]["coarse_k"] < rr["c2f_params"]["k_ac"]
     for m in ("fast", "greedy", "c2f"):

@@ -231,3 +231,33 @@ def test_coarse_to_fine_counts_every_scored_pair_once():
     assert sum(calls) == p.n_comparisons and p.obj_index == 2
     with pytest.raises(ValueError, match="coarse_k and refine_objects"):
         fast_search(q, bank, rotation_scorer, k_ac=64, coarse_k=8, refine_objects=0)
+
+
+def test_coarse_to_fine_halving_rounds():
+    """Successive halving: 6 objects x 16 anchors, the best 3 score 16 more, the best 2 all 128."""
+    K, R = 6, 2000
+    bank = synthetic_bank(K, R, k_ac=128)
+    truths = haar_uniform(12, seed=11)
+    objs = np.arange(12) % K
+    queries = np.stack([synthetic_feats(truths[i:i + 1], objs[i], K)[0] for i in range(12)])
+    calls = []
+
+    def counting(q, r):
+        calls.append(len(r))
+        return rotation_scorer(q, r)
+
+    fast = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=128, fps_k=32)
+    for f, qf in zip(fast, queries):
+        calls.clear()
+        c = fast_search(qf, bank, counting, k_ac=128, fps_k=32, coarse_k=16, refine_objects=2, halving=True)
+        assert (c.obj_index, c.ref_index) == (f.obj_index, f.ref_index)
+        assert c.n_comparisons == f.n_comparisons - (K * 128 - (K * 16 + 3 * 16 + 2 * 96))
+        assert sum(calls) == c.n_comparisons
+        assert calls[0] == K * 16  # the coarse round is one scorer call
+    via_all = search_all(queries[:2], bank, rotation_scorer, method="c2f", progress=False, k_ac=128, fps_k=32,
+                         coarse_k=16, refine_objects=2, halving=True)
+    assert [p.n_comparisons for p in via_all] == [fast_search(q, bank, rotation_scorer, k_ac=128, fps_k=32,
+                                                              coarse_k=16, refine_objects=2, halving=True).n_comparisons
+                                                  for q in queries[:2]]
+    with pytest.raises(ValueError, match="anchor_head_feats"):
+        bank.anchor_head_feats(128, 0)

@@ -125,3 +125,35 @@ def test_continuous_symmetry_is_the_limit_of_fine_discretisation():
                              for d in flip.discrete])
     old = np.array([symmetric_geodesic_deg(R_est[i:i + 1], R_gt[i:i + 1], coarse)[0] for i in range(50)])
     assert (old >= exact - 1e-6).all() and (old - exact).max() > 3.0
+
+
+def test_fps_traces_are_exact_in_any_order():
+    """The quantised layout makes traces order-independent, so ties break alike everywhere."""
+    L = rot.exact_traces_layout(rot.haar_uniform(500, seed=3))
+    v = L[:, 7]
+    forward = sum(L[c] * v[c] for c in range(9))
+    backward = sum(L[c] * v[c] for c in reversed(range(9)))
+    np.testing.assert_array_equal(v @ L, forward)
+    np.testing.assert_array_equal(forward, backward)
+    assert np.abs(L.T.reshape(-1, 3, 3) - rot.haar_uniform(500, seed=3)).max() <= rot.TRACE_QUANTUM
+
+
+def _fps_numpy(R, k, start=0, candidates=None, monkeypatch=None):
+    monkeypatch.setattr(rot, "_fps_kernel", lambda: None)
+    out = rot.farthest_point_sampling(R, k, start=start, candidates=candidates)
+    monkeypatch.undo()
+    return out
+
+
+@pytest.mark.skipif(rot._fps_kernel() is None, reason="no C++ toolchain: the FPS kernel cannot build here")
+def test_fps_kernel_matches_numpy(monkeypatch):
+    R = rot.haar_uniform(3000, seed=1)
+    for k, start, cand in [(64, 0, None), (256, 17, np.arange(500, 2900)), (2, 5, np.arange(10))]:
+        np.testing.assert_array_equal(rot.farthest_point_sampling(R, k, start=start, candidates=cand),
+                                      _fps_numpy(R, k, start, cand, monkeypatch))
+    # A symmetric set (90-degree turns about the axes, composed) is full of exact ties.
+    turns = [rot.rot_z(a) for a in (0, np.pi / 2, np.pi, 3 * np.pi / 2)]
+    swap = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], dtype=float)
+    grid = np.stack([a @ np.linalg.matrix_power(swap, p) @ b.T for a in turns for b in turns for p in range(3)])
+    np.testing.assert_array_equal(rot.farthest_point_sampling(grid, 20),
+                                  _fps_numpy(grid, 20, monkeypatch=monkeypatch))

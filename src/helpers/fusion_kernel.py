@@ -1,4 +1,5 @@
-"""Fused CPU kernel for the inference-time fusion of one query against many references.
+"""Fused CPU kernels: the inference-time fusion of one query against many references, and
+farthest point sampling on SO(3) (the inner loop of fast retrieval's rotation stage).
 
 The eager PyTorch fusion (:func:`helpers.model._fuse_block`) runs five or six
 element-wise passes over each (references x C x X) block and pays Python
@@ -20,7 +21,8 @@ and ninja, about 30 s once per machine) into ``<cache>/ext/<hash>`` and
 loaded from there afterwards. Importing this module builds nothing. If the
 build fails (no compiler, no ninja) or ``HELPERS_FUSION_KERNEL=0`` is set,
 :func:`get` returns None and callers use the eager path; :func:`status`
-says which and why. Inference only: there is no backward.
+says which and why. Inference only: there is no backward. ``fps`` returns exactly the
+indices of the numpy loop in :func:`helpers.rotations.farthest_point_sampling`.
 """
 
 from __future__ import annotations
@@ -152,6 +154,43 @@ torch::Tensor fuse(torch::Tensor q, torch::Tensor r, int64_t off, int64_t X,
     TORCH_CHECK(false, "fuse: r must be float16 or float32");
   return out;
 }
+
+// Greedy farthest point sampling by traces (helpers.rotations.farthest_point_sampling):
+// layout (9, M) float64 whose entries are multiples of 2^-24, so every trace below is exact in
+// any summation order (-ffast-math and FMA cannot change it). Returns k pool positions: start,
+// then repeatedly the position whose largest trace to the chosen set is smallest (first on ties).
+torch::Tensor fps(torch::Tensor layout, int64_t k, int64_t start) {
+  TORCH_CHECK(layout.device().is_cpu() && layout.dim() == 2 && layout.size(0) == 9 &&
+              layout.scalar_type() == torch::kDouble && layout.is_contiguous(),
+              "fps: layout must be a (9, M) contiguous float64 CPU tensor");
+  const int64_t M = layout.size(1);
+  TORCH_CHECK(k >= 1 && k <= M && start >= 0 && start < M, "fps: need 1 <= k <= M and 0 <= start < M");
+  const double* F = layout.data_ptr<double>();
+  std::vector<double> best(M);
+  auto out = torch::empty({k}, torch::kLong);
+  int64_t* o = out.data_ptr<int64_t>();
+  int64_t j = start;
+  for (int64_t i = 0; i < k; ++i) {
+    o[i] = j;
+    if (i + 1 == k) break;
+    double v[9];
+    for (int c = 0; c < 9; ++c) v[c] = F[c * M + j];
+    double* B = best.data();
+    const bool first = i == 0;
+    for (int64_t m = 0; m < M; ++m) {  // vectorised: one pass over the nine rows
+      const double t = F[m] * v[0] + F[M + m] * v[1] + F[2 * M + m] * v[2] + F[3 * M + m] * v[3] +
+                       F[4 * M + m] * v[4] + F[5 * M + m] * v[5] + F[6 * M + m] * v[6] +
+                       F[7 * M + m] * v[7] + F[8 * M + m] * v[8];
+      B[m] = (first || t > B[m]) ? t : B[m];
+    }
+    double lo = B[0];
+    int64_t arg = 0;
+    for (int64_t m = 1; m < M; ++m)
+      if (B[m] < lo) { lo = B[m]; arg = m; }
+    j = arg;
+  }
+  return out;
+}
 """
 
 # -ffast-math lets gcc vectorise the sums (the kernel needs no inf/NaN semantics: the max starts
@@ -203,7 +242,7 @@ def _build() -> tuple[Any, Path]:
         os.environ["PATH"] = f"{ninja_bin}{os.pathsep}{old_path}"
     try:
         module = ext.load_inline(name=f"helpers_fusion_{where.name.split('_')[1]}", cpp_sources=_SOURCE,
-                                 functions=["fuse"],  # copies: torch appends to the lists it is given
+                                 functions=["fuse", "fps"],  # copies: torch appends to the lists it is given
                                  extra_cflags=list(_CFLAGS), extra_ldflags=list(_LDFLAGS),
                                  build_directory=str(where), verbose=False)
         return module, where
@@ -364,7 +403,7 @@ def get() -> Any | None:
                 _state["module"] = None
                 _state["reason"] = f"build failed: {type(e).__name__}: {str(e).splitlines()[0][:300] if str(e) else ''}"
                 warnings.warn(f"helpers.fusion_kernel: {_state['reason']}; using the eager PyTorch fusion "
-                              "(slower, same results)", RuntimeWarning, stacklevel=2)
+                              "and numpy farthest point sampling (slower, same results)", RuntimeWarning, stacklevel=2)
             _state["build_seconds"] = time.perf_counter() - t0
             _state["tried"] = True
     return _state["module"]
