@@ -118,3 +118,25 @@ def test_ablation_claims_carry_the_seed_aware_verdict_and_paired_refcount_and_fa
     assert r["verdict"] == "holds" and r["ci95"][0] > 0 and "paired" in r["claim"]
     f = ids["fast_minus_greedy"]
     assert f["ours"] == 0.0 and f["verdict"] == "no difference beyond noise"
+    assert "c2f_minus_fast" not in ids  # notebook 07 without coarse-to-fine rows
+
+
+def test_c2f_claims_need_the_whole_interval_within_one_point(tmp_path):
+    rng = np.random.default_rng(9)
+    fast = tmp_path / "07_fast_vs_greedy"
+    fast.mkdir()
+    f = _pq(rng, {1: ["a", "b"]}, {"a": 0.4, "b": 0.4}, n=300)
+    worse = f.copy()
+    worse["rot_ok"] = worse["rot_ok"] & (rng.random(len(worse)) > 0.3)  # loses ~12 points
+    for name, df in (("greedy", f), ("fast", f), ("c2f", worse), ("c2f_halving", f)):
+        df.to_csv(fast / f"per_query_{name}.csv", index=False)
+    (fast / "metrics.json").write_text(json.dumps({"table": [
+        {"method": "greedy", "median s/query": 1.0}, {"method": "fast (converge)", "median s/query": 0.2},
+        {"method": "coarse-to-fine (converge)", "median s/query": 0.05},
+        {"method": "coarse-to-fine halving (converge)", "median s/query": 0.1}],
+        "main_fast_method": "fast (converge)", "agreement_30deg": {}}))
+    ids = {c["id"]: c for c in build_claims(tmp_path)}
+    c, h = ids["c2f_minus_fast"], ids["c2f_halving_minus_fast"]
+    assert c["verdict"] == "c2f loses accuracy" and c["ci95"][1] < 0 and c["speedup_over_fast"] == 4.0
+    assert h["ours"] == 0.0 and h["ci95"] == [0.0, 0.0] and h["verdict"] == "within 1 point"
+    assert h["speedup_over_fast"] == 2.0

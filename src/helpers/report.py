@@ -286,4 +286,12 @@ def _fast(d: Path) -> list[str]:
             f"{g['greedy']['rot_acc']} % in {g['greedy']['seconds_per_query']} s (V100, 13 x 10,000).", "",
             f"- fast retrieval is faster than greedy: {_yes(m['trend']['fast_is_faster'])}; accuracy drop "
             f"{_fmt(m['trend']['fast_accuracy_drop_pts'])} points (paper: "
-            f"{g['greedy']['rot_acc'] - g['fast']['rot_acc']:.1f})", "", "![time](07_fast_vs_greedy/fast_vs_greedy.png)", ""]
+            f"{g['greedy']['rot_acc'] - g['fast']['rot_acc']:.1f})", *_c2f_lines(m), "",
+            "![time](07_fast_vs_greedy/fast_vs_greedy.png)", ""]
+
+
+def _c2f_lines(m: dict) -> list[str]:
+    """Coarse-to-fine rows (ours) against fast retrieval, paired, when notebook 07 ran them."""
+    return [f"- {k} minus fast (same queries, paired): {v['diff_pts']:+.1f} points, 95 % CI "
+            f"[{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}] ({v['n_queries']} queries)"
+            for k, v in (m.get("c2f_minus_fast") or {}).items()]
