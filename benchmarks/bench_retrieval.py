@@ -36,6 +36,8 @@ PAPER_FPS_K = 256
 # Coarse-to-fine category stage (helpers.retrieval.fast_search coarse_k / refine_objects) at the paper's k_ac.
 C2F_COARSE_K = 64
 C2F_REFINE_OBJECTS = 3
+# Its successive-halving variant (halving=True) halves the objects down to this many (notebook 07's default).
+C2F_HALVING_REFINE_OBJECTS = 1
 
 
 # =========================================================================== 5. retrieval (synthetic)
@@ -135,6 +137,8 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
         "model": "random-init OrientationNet (seed %d), fusion MLP set to a monotone readout "
                  "(score = tanh(3 * mean fused cosine)); same operations and cost as a trained model" % cfg.seed,
         "fast_params": {"k_ac": PAPER_K_AC, "fps_k": PAPER_FPS_K, "schedule": "converge", "top_anchors": 3},
+        "c2f_halving_params": {"refine_objects": C2F_HALVING_REFINE_OBJECTS, "halving": True,
+                               "rest": "as c2f_params"},
         "c2f_params": {"k_ac": PAPER_K_AC, "fps_k": PAPER_FPS_K, "coarse_k": C2F_COARSE_K,
                        "refine_objects": C2F_REFINE_OBJECTS, "schedule": "converge", "top_anchors": 3,
                        "what": "fast_search with the coarse-to-fine category stage: the first coarse_k anchors "
@@ -218,9 +222,9 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
             log(f"{key}: c2f {c2f['s_per_query_median']:.3f} s/query, "
                 f"{c2f['comparisons_per_query_median']:.0f} comparisons")
             wait_quiet()
-            fast_search(warm, bank, scorer, halving=True, **c2f_kw)  # warm-up
-            hp, c2fh = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, halving=True,
-                                     **c2f_kw)
+            halving_kw = {**c2f_kw, "refine_objects": C2F_HALVING_REFINE_OBJECTS, "halving": True}
+            fast_search(warm, bank, scorer, **halving_kw)  # warm-up
+            hp, c2fh = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, **halving_kw)
             log(f"{key}: c2f halving {c2fh['s_per_query_median']:.3f} s/query, "
                 f"{c2fh['comparisons_per_query_median']:.0f} comparisons")
             wait_quiet()
@@ -339,7 +343,8 @@ def bench_real_agreement(cfg: BenchConfig, checkpoint: str | None = None, tmp_ro
     gp, greedy = _search_timed(greedy_search, q_list, bank, scorer, group=1024)
     fp, fast = _search_timed(fast_search, q_list, bank, scorer, **scaled)
     cp, c2f = _search_timed(fast_search, q_list, bank, scorer, **scaled_c2f)
-    hp, c2fh = _search_timed(fast_search, q_list, bank, scorer, halving=True, **scaled_c2f)
+    hp, c2fh = _search_timed(fast_search, q_list, bank, scorer,
+                             **{**scaled_c2f, "refine_objects": C2F_HALVING_REFINE_OBJECTS, "halving": True})
 
     # Records need each query's index within its object.
     idx_in_obj, seen = [], {}

@@ -259,5 +259,11 @@ def test_coarse_to_fine_halving_rounds():
     assert [p.n_comparisons for p in via_all] == [fast_search(q, bank, rotation_scorer, k_ac=128, fps_k=32,
                                                               coarse_k=16, refine_objects=2, halving=True).n_comparisons
                                                   for q in queries[:2]]
+    # Down to one object: 6 x 16, 3 x 16, 2 x 32, then the last one its other 64 anchors.
+    for f, qf in zip(fast[:4], queries[:4]):
+        calls.clear()
+        one = fast_search(qf, bank, counting, k_ac=128, fps_k=32, coarse_k=16, refine_objects=1, halving=True)
+        assert calls[:4] == [K * 16, 16, 16, 16] and sum(calls[4:6]) == 64 and calls[6] == 64
+        assert one.obj_index == f.obj_index and one.n_comparisons == sum(calls)
     with pytest.raises(ValueError, match="anchor_head_feats"):
         bank.anchor_head_feats(128, 0)

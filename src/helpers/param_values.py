@@ -24,7 +24,8 @@ _MIN_INT = {
     "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 1, "fps_k": 1,
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
-    "occluded_queries": 0, "eval_refs": 0, "coarse_k": 0, "refine_objects": 1, "n_seeds": 1, "test_queries": 0,
+    "occluded_queries": 0, "eval_refs": 0, "coarse_k": 0, "refine_objects": 1, "halving_refine_objects": 0,
+    "n_seeds": 1, "test_queries": 0,
 }
 _CHOICES = {
     "lr_schedule": ("step", "cosine"),
