@@ -330,8 +330,9 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
     ``halving=True`` cuts the objects in rounds instead (successive halving):
     the better half stays in play and scores twice as many anchors, until
     ``refine_objects`` remain and score all of them (at K=13, k_ac=1024,
-    coarse_k=64, refine_objects=2: 13x64 + 7x64 + 4x128 + 2x768 = 3,328 pairs
-    instead of 13,312), so one unlucky coarse round cannot drop the right object.
+    coarse_k=64, refine_objects=1: 13x64 + 7x64 + 4x128 + 2x256 + 1x512 = 2,816
+    pairs instead of 13,312; the last two objects compete on 512 anchors each),
+    so no single coarse round decides the object.
     """
     if schedule not in ("converge", "authors"):
         raise ValueError(f"fast_search: schedule must be 'converge' or 'authors', got {schedule!r}")
@@ -462,7 +463,8 @@ def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, method: st
 
     ``method``: "greedy", "fast" (the authors' Algorithm 1) or "c2f" (fast search with
     the coarse-to-fine category stage: ``coarse_k`` anchors per object first, default
-    64, then all ``k_ac`` anchors of ``refine_objects`` objects; always one query at a time).
+    64, then all ``k_ac`` anchors of ``refine_objects`` objects, or ``halving=True``; always
+    one query at a time).
 
     For "fast", the anchor stage of ``query_batch`` queries at a time is one
     batched scoring pass (:func:`anchor_scores_batch`); each prediction's
