@@ -102,9 +102,11 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
         assert b["synthetic_agreement_c2f_fast"] == 1.0
         assert b["c2f"]["comparisons_per_query_all"] == b["fast"]["comparisons_per_query_all"]
         _positive(b["c2f_halving"], "s_per_query_median", "comparisons_per_query_median")
-        # R (40, 80) <= coarse_k (64): there is no coarse round, both variants are the authors' search.
+        # At R=40 there is no coarse round (coarse_k 64 >= R); at R=80 halving to 1 of 2 objects
+        # skips the other's remaining anchors: never more pairs than fast, same answers here.
         assert b["synthetic_agreement_c2f_halving_fast"] == 1.0
-        assert b["c2f_halving"]["comparisons_per_query_all"] == b["fast"]["comparisons_per_query_all"]
+        assert all(h <= f for h, f in zip(b["c2f_halving"]["comparisons_per_query_all"],
+                                          b["fast"]["comparisons_per_query_all"]))
     assert rs["c2f_params"]["coarse_k"] == 64 and rs["c2f_params"]["refine_objects"] == 3
     assert rs["write"]["bytes_on_disk"] == rs["write"]["bytes_from_shape"] == 2 * 80 * C * L * 2
 
