@@ -322,3 +322,54 @@ def test_kernel_not_used_with_autograd_and_can_be_disabled(monkeypatch):
         model.fusion_backend = "kernel"
         with pytest.raises(RuntimeError, match="kernel is unavailable"):
             model.score(q.detach(), r)
+
+
+@pytest.mark.parametrize("fusion, scales", [("adaptive", (32, 16, 13)), ("softmax", (16, 13)),
+                                            ("avg", (32, 16, 13)), ("adaptive", "global")])
+@pytest.mark.parametrize("backend", ["eager", "kernel"])
+def test_score_rows_equals_scoring_the_gathered_rows(fusion, scales, backend):
+    """score(q, r, rows=idx) == score(q, r[idx]) in idx order (repeats allowed), any chunk, float16 too."""
+    if backend == "kernel":
+        _kernel_or_skip()
+    model = _model(image_size=64, fusion=fusion, scales=scales)
+    model.fusion_backend = backend
+    q, r = _feats(model, 2, seed=21), _feats(model, 40, seed=22)
+    idx = torch.tensor([7, 3, 39, 3, 0, 12, 25])
+    with torch.inference_mode():
+        for refs in (r, r.half()):
+            want = model.score(q, refs[idx])
+            for chunk in (1, 3, 1024):
+                got = model.score(q, refs, chunk=chunk, rows=idx)
+                assert got.shape == (2, len(idx))
+                assert torch.allclose(got, want, atol=1e-6), float((got - want).abs().max())
+            assert model.score(q, refs, rows=torch.zeros(0, dtype=torch.long)).shape == (2, 0)
+        with pytest.raises(ValueError, match="rows"):
+            model.score(q, r, rows=torch.tensor([0, 40]))
+        with pytest.raises(ValueError, match="rows"):
+            model.score(q, r, rows=torch.tensor([-1]))
+
+
+def test_kernel_all_levels_equals_one_level_at_a_time():
+    """fuse_levels (all levels, rows read in place) == fuse level by level on the gathered rows."""
+    from helpers import fusion_kernel
+
+    _kernel_or_skip()
+    kernel = fusion_kernel.get()
+    model = _model(image_size=64, fusion="adaptive", scales=(32, 16, 13))
+    with torch.no_grad():
+        for lin in model.fusion.logit.values():
+            lin.weight.normal_(0.0, 3.0)
+    q, r = _feats(model, 1, seed=23)[0], _feats(model, 30, seed=24).half()
+    rows = torch.tensor([29, 0, 5, 5, 17])
+    levels = list(model.scale_slices.items())
+    w = torch.stack([model._fusion_params(lv)[0].detach() for lv, _ in levels]).contiguous()
+    b = torch.stack([model._fusion_params(lv)[1].detach() for lv, _ in levels]).contiguous()
+    offs, widths = [sl.start for _, sl in levels], [sl.stop - sl.start for _, sl in levels]
+    got = kernel.fuse_levels(q, r, rows, offs, widths, w, b, fusion_kernel.MODES["adaptive"])
+    gathered = r[rows].contiguous()
+    want = torch.cat([kernel.fuse(q[:, sl].contiguous(), gathered, sl.start, sl.stop - sl.start, w[i], b[i], 0)
+                      for i, (_, sl) in enumerate(levels)], dim=1)
+    assert got.shape == (len(rows), len(levels) * model.cfg.channels)
+    assert torch.allclose(got, want, atol=1e-6)
+    with pytest.raises(RuntimeError, match="out of range"):
+        kernel.fuse_levels(q, r, torch.tensor([30]), offs, widths, w, b, 0)

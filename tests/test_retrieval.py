@@ -267,3 +267,54 @@ def test_coarse_to_fine_halving_rounds():
         assert one.obj_index == f.obj_index and one.n_comparisons == sum(calls)
     with pytest.raises(ValueError, match="anchor_head_feats"):
         bank.anchor_head_feats(128, 0)
+
+
+def test_row_indexed_scoring_reads_the_bank_in_place_and_changes_nothing(tmp_path):
+    """A model scorer with ``rows`` scores a float16 memmap bank where it lies: same predictions, no copies."""
+    from helpers.model import ModelConfig, OrientationNet
+
+    torch.manual_seed(0)
+    model = OrientationNet(ModelConfig(image_size=64, scales=(16, 13))).eval()
+    c, length = model.cfg.channels, model.feature_length
+    rots = haar_uniform(300, seed=3)
+    g = torch.Generator().manual_seed(4)
+    feats = []
+    for o in range(3):
+        path = tmp_path / f"obj{o}.f16"
+        f = torch.nn.functional.normalize(torch.randn(len(rots), c, length, generator=g), dim=1).half().numpy()
+        f.tofile(path)
+        feats.append(np.memmap(path, dtype=np.float16, mode="r", shape=f.shape))
+    bank = ReferenceBank(feats, rots, ["a", "b", "c"], k_ac=32)
+    src = bank.ref_source(1)
+    assert src.shape == (300, c, length) and src.dtype == torch.float16
+    assert src.data_ptr() == feats[1].ctypes.data  # shares the memmap's memory: no copy
+    assert bank.ref_feats(1, np.array([4, 9, 200])).dtype == torch.float16  # sorted fast path
+    assert torch.equal(bank.ref_feats(1, np.array([200, 4, 9]))[0], src[200])  # any order
+    assert synthetic_bank(2, 60, dtype=np.float64, k_ac=10).ref_source(0) is None
+    with_rows = model_scorer(model)
+    assert with_rows.rows
+
+    def gathered(q, r):  # the same model without the row path
+        return with_rows(q, r)
+
+    gathered.batched = True
+    q = torch.nn.functional.normalize(torch.randn(4, c, length, generator=g), dim=1)
+    for kw in ({}, {"coarse_k": 8, "refine_objects": 2}, {"coarse_k": 8, "refine_objects": 1, "halving": True}):
+        for i in range(len(q)):
+            a = fast_search(q[i], bank, with_rows, k_ac=32, fps_k=16, **kw)
+            b = fast_search(q[i], bank, gathered, k_ac=32, fps_k=16, **kw)
+            assert (a.obj_index, a.ref_index, a.n_comparisons) == (b.obj_index, b.ref_index, b.n_comparisons)
+            assert a.score == pytest.approx(b.score, abs=1e-6)
+
+
+def test_duck_typed_model_without_rows_gets_gathered_refs():
+    class Fake:
+        def score(self, q, r, chunk=1024):
+            return rotation_scorer(q.expand(len(r), -1, -1), r)[None]
+
+    scorer = model_scorer(Fake())
+    assert not scorer.rows
+    bank = synthetic_bank(2, 100, k_ac=20)
+    q = synthetic_feats(bank.rotations[42:43], 1, 2)[0]
+    p = fast_search(q, bank, scorer, k_ac=20, fps_k=8)
+    assert (p.obj_index, p.ref_index) == (1, 42)

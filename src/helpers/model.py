@@ -51,6 +51,8 @@ _BLOCK_ELEMENTS = 2 ** 17
 _BLOCK_ELEMENTS_GRAD = 2 ** 22
 # On a GPU the blocks are sized for launch overhead, not a cache: 2**26 floats = 256 MB.
 _BLOCK_ELEMENTS_GPU = 2 ** 26
+# Reference dtypes scored as they are stored (anything else is promoted to float32 first).
+_KERNEL_DTYPES = (torch.float16, torch.float32)
 # References per slice in the bilinear-logit path (slice * C * X <= this): the
 # float32 copy of the slice that the batched matmul needs stays at 16 MB.
 _SLICE_ELEMENTS = 2 ** 22
@@ -405,8 +407,15 @@ class OrientationNet(nn.Module):
                                     for i in range(nq)], 0))
         return torch.cat(out, 1)
 
-    def _score_chunk(self, q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
-        """q (Q,C,L) float32, r (Rc,C,L) float16/32 on the same device -> (Q, Rc)."""
+    def _score_chunk(self, q: torch.Tensor, r: torch.Tensor, rows: torch.Tensor | None = None) -> torch.Tensor:
+        """q (Q,C,L) float32, r (Rc,C,L) float16/32 on the same device -> (Q, Rc).
+
+        ``rows`` (M,) int64: score r[rows] instead -> (Q, M). The CPU kernel reads
+        those rows in place (no gathered copy); other paths gather them first.
+        """
+        kernel = None if self.cfg.is_global or self.fusion is None else self._kernel(q, r)
+        if rows is not None and (kernel is None or not r.is_contiguous() or r.dtype not in _KERNEL_DTYPES):
+            r, rows = r[rows].to(device=q.device, dtype=r.dtype if r.dtype in _KERNEL_DTYPES else torch.float32), None
         if self.cfg.is_global:
             return q[:, :, 0] @ r[:, :, 0].float().T
         if self.fusion is None:  # "avg": per-level mean cosine is one matmul on flattened maps
@@ -415,17 +424,22 @@ class OrientationNet(nn.Module):
                 n = sl.stop - sl.start
                 total = total + q[:, :, sl].flatten(1) @ r[:, :, sl].float().flatten(1).T / n
             return total / len(self.scale_slices)
-        kernel = self._kernel(q, r)
         if kernel is not None:
+            # One kernel call per query covers every level (level-major (M, n*C), as the cat below).
             r = r.contiguous()
+            if rows is None:
+                rows = torch.arange(r.shape[0])
             mode = fusion_kernel.MODES[self.cfg.fusion]
-            vs = []
-            for lv, sl in self.scale_slices.items():
-                w, b = (t.detach().float().contiguous() for t in self._fusion_params(lv))
-                vs.append(torch.stack([kernel.fuse(q[i, :, sl].contiguous(), r, sl.start, sl.stop - sl.start,
-                                                   w, b, mode) for i in range(q.shape[0])], 0))
-        else:
-            vs = [self._fused_vectors(lv, q[:, :, sl], r[:, :, sl]) for lv, sl in self.scale_slices.items()]
+            params = [self._fusion_params(lv) for lv in self.scale_slices]
+            w = torch.stack([t.detach().float() for t, _ in params]).contiguous()  # (n, K, C)
+            b = torch.stack([t.detach().float() for _, t in params]).contiguous()  # (n, K)
+            offs = [sl.start for sl in self.scale_slices.values()]
+            widths = [sl.stop - sl.start for sl in self.scale_slices.values()]
+            rows = rows.to(dtype=torch.int64).contiguous()
+            fused = torch.stack([kernel.fuse_levels(q[i].contiguous(), r, rows, offs, widths, w, b, mode)
+                                 for i in range(q.shape[0])], 0)
+            return self.fusion.head(fused)
+        vs = [self._fused_vectors(lv, q[:, :, sl], r[:, :, sl]) for lv, sl in self.scale_slices.items()]
         return self.fusion.head(torch.cat(vs, dim=-1))
 
     def _kernel(self, q: torch.Tensor, r: torch.Tensor):
@@ -441,7 +455,8 @@ class OrientationNet(nn.Module):
                                f"{fusion_kernel.status()['reason']}")
         return kernel
 
-    def score(self, q: torch.Tensor, r: torch.Tensor, chunk: int = 1024) -> torch.Tensor:
+    def score(self, q: torch.Tensor, r: torch.Tensor, chunk: int = 1024,
+              rows: torch.Tensor | None = None) -> torch.Tensor:
         """All query/reference scores.
 
         Args:
@@ -449,7 +464,11 @@ class OrientationNet(nn.Module):
             r: (R, C, L) reference features, float16/32 on any device (e.g.
                 a float16 memory-mapped cache on CPU); moved to q's device one
                 chunk at a time and promoted to float32 block by block.
-            chunk: references per chunk. Peak extra memory is about one
+            rows: optional (M,) int64 indices: score only r[rows] -> (Q, M), in
+                that order. On CPU the fused kernel reads those rows where
+                they lie (a memory-mapped bank is not copied); elsewhere each
+                chunk of rows is gathered first.
+            chunk: references (or rows) per chunk. Peak extra memory is about one
                 chunk on q's device (``chunk * C * L`` elements of r's dtype)
                 plus the (Q, chunk, C) fused vectors; the float32 working
                 blocks are capped (q*r blocks 0.5 MB, 16 MB with autograd;
@@ -470,7 +489,14 @@ class OrientationNet(nn.Module):
         if chunk < 1:
             raise ValueError(f"chunk: expected >= 1, got {chunk}")
         q = q.float()
-        keep = r.dtype in (torch.float16, torch.float32)
+        if rows is not None:
+            rows = torch.as_tensor(rows, dtype=torch.int64, device="cpu")
+            if rows.ndim != 1 or (len(rows) and (int(rows.min()) < 0 or int(rows.max()) >= r.shape[0])):
+                raise ValueError(f"rows: expected (M,) indices in [0, {r.shape[0]}), got shape {tuple(rows.shape)}"
+                                 + (f", range [{int(rows.min())}, {int(rows.max())}]" if rows.numel() else ""))
+            out = [self._score_chunk(q, r, rows[s:s + chunk]) for s in range(0, len(rows), chunk)]
+            return torch.cat(out, dim=1) if out else q.new_zeros(q.shape[0], 0)
+        keep = r.dtype in _KERNEL_DTYPES
         out = [self._score_chunk(q, r[s:s + chunk].to(device=q.device,
                                                       dtype=r.dtype if keep else torch.float32))
                for s in range(0, r.shape[0], chunk)]

@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import inspect
 import time
 import warnings
 
@@ -169,10 +170,29 @@ class ReferenceBank:
         idx = np.asarray(idx, dtype=np.int64)
         src = self.feats[obj]
         dtype = np.float16 if src.dtype == np.float16 else np.float32
+        if len(idx) < 2 or bool((idx[1:] >= idx[:-1]).all()):
+            # Already in order (the fast search's score cache asks this way): one copy, not two.
+            return torch.from_numpy(np.ascontiguousarray(src[idx], dtype=dtype))
         order = np.argsort(idx)  # sorted reads are sequential on a memmap
         out = np.empty((len(idx), *src.shape[1:]), dtype=dtype)
         out[order] = src[idx[order]]
         return torch.from_numpy(out)
+
+    def ref_source(self, obj: int) -> torch.Tensor | None:
+        """All (R, C, L) features of object ``obj`` as a CPU tensor sharing the bank's memory, or None.
+
+        None unless the features are a C-contiguous float16/float32 numpy array (or
+        memmap): then a row-indexed scorer (``scorer.rows``) can read the rows it
+        needs in place instead of :meth:`ref_feats` copying them out first.
+        """
+        src = self.feats[obj]
+        if not isinstance(src, np.ndarray) or src.dtype not in (np.float16, np.float32) \
+                or not src.flags.c_contiguous:
+            return None
+        with warnings.catch_warnings():
+            # Read-only memmaps are wrapped without a copy; scorers only read them.
+            warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
+            return torch.from_numpy(src)
 
     def chunk(self, obj: int, start: int, stop: int) -> torch.Tensor:
         """Features (stop - start, C, L) of a contiguous run of references (dtype as in :meth:`ref_feats`)."""
@@ -190,16 +210,24 @@ def model_scorer(model: Any, device: str | torch.device = "cpu", chunk: int = 10
 
     Puts the model in eval mode (if it has ``eval``) since scores must be
     deterministic; runs under ``torch.inference_mode``; returns (Q, M) CPU
-    scores. Marked ``batched`` (takes several queries at once).
+    scores. Marked ``batched`` (takes several queries at once) and, if
+    ``model.score`` takes ``rows``, ``rows`` (``scorer(q, r, rows=idx)`` scores
+    r[idx]; with a CPU model the fused kernel reads those rows of a
+    memory-mapped bank in place).
     """
     if hasattr(model, "eval"):
         model.eval()
 
-    def scorer(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    def scorer(q: torch.Tensor, r: torch.Tensor, rows: torch.Tensor | None = None) -> torch.Tensor:
         with torch.inference_mode():
+            if rows is not None:
+                # r stays where it is (a whole bank): only the chosen rows move, chunk by chunk.
+                return model.score(q.to(device), r, chunk=chunk, rows=rows).float().cpu()
             return model.score(q.to(device), r.to(device), chunk=chunk).float().cpu()
 
     scorer.batched = True  # type: ignore[attr-defined]
+    # Duck-typed models whose score() has no ``rows`` get gathered references instead.
+    scorer.rows = "rows" in inspect.signature(model.score).parameters  # type: ignore[attr-defined]
     return scorer
 
 
@@ -218,12 +246,13 @@ def _check_query(q: torch.Tensor, bank: ReferenceBank) -> None:
                          f"{tuple(bank.feats[0].shape[1:])}")
 
 
-def _run_scorer(scorer: Scorer, q: torch.Tensor, refs: torch.Tensor) -> np.ndarray:
-    s = scorer(q, refs)
+def _run_scorer(scorer: Scorer, q: torch.Tensor, refs: torch.Tensor, rows: torch.Tensor | None = None) -> np.ndarray:
+    s = scorer(q, refs) if rows is None else scorer(q, refs, rows=rows)
     s = s.detach().cpu().numpy() if torch.is_tensor(s) else np.asarray(s)
     s = s.reshape(-1).astype(np.float64)
-    if len(s) != len(refs):
-        raise ValueError(f"scorer returned {len(s)} scores for {len(refs)} references")
+    n = len(refs) if rows is None else len(rows)
+    if len(s) != n:
+        raise ValueError(f"scorer returned {len(s)} scores for {n} references")
     return s
 
 
@@ -274,9 +303,13 @@ class _ScoreCache:
     def __call__(self, obj: int, idx: np.ndarray) -> np.ndarray:
         d = self._row(obj)
         new = np.unique(idx[np.isnan(d[idx])])
+        src = self.bank.ref_source(obj) if getattr(self.scorer, "rows", False) else None
         for s in range(0, len(new), self.group):
             part = new[s:s + self.group]
-            d[part] = _run_scorer(self.scorer, self.q, self.bank.ref_feats(obj, part))
+            if src is not None:  # the scorer reads the rows in place: no gathered copy
+                d[part] = _run_scorer(self.scorer, self.q, src, rows=torch.from_numpy(part))
+            else:
+                d[part] = _run_scorer(self.scorer, self.q, self.bank.ref_feats(obj, part))
         if np.isnan(d[new]).any():
             raise ValueError("scorer returned NaN scores")
         self.n_comparisons += len(new)
