@@ -67,7 +67,7 @@ SCHEMA_VERSION = 1
 # Targets (section 7 of the brief / the paper's claims, scaled to this machine).
 TARGET_FAST_S_PER_QUERY = 0.5
 TARGET_SPEEDUP = 150.0
-TARGET_CACHE_BYTES = 12e9  # 12 GB (decimal)
+TARGET_CACHE_BYTES = 12_000_000_000  # 12 GB (decimal)
 # Coarse-to-fine fast search (coarse_k 64, refine_objects 3) over 13 x 10,000.
 TARGET_C2F_S_PER_QUERY = 0.12
 TARGET_C2F_SPEEDUP = 25.0
@@ -152,71 +152,65 @@ QUICK = BenchConfig(mode="quick", render_objects=2, render_refs_per_object=64, r
 
 # =========================================================================== 7. targets
 
+def _target(value: float, bound: float, at_most: bool, reason: str) -> dict:
+    """One target entry: value, "<= bound" or ">= bound", met, and ``reason`` (None when met)."""
+    met = value <= bound if at_most else value >= bound
+    return {"value": value, "target": f"{'<=' if at_most else '>='} {bound}", "met": met,
+            "reason": None if met else reason}
+
+
 def evaluate_targets(res: dict) -> dict:
     """Targets of the brief and whether this run met them (value, target, met, reason)."""
     key = f"{PAPER_OBJECTS}x{PAPER_REFS}"
     bank = res.get("retrieval_synthetic", {}).get("banks", {}).get(key)
     out = {}
     if bank and not bank.get("skipped"):
-        fast_s = bank["fast"]["s_per_query_median"]
-        sp = bank["speedup_greedy_over_fast"]
-        cmp_ratio = bank["comparison_ratio_greedy_over_fast"]
-        rate = bank["fast"]["pair_scores_per_s"]
-        out["fast_s_per_query_13x10000"] = {
-            "value": fast_s, "target": f"<= {TARGET_FAST_S_PER_QUERY}", "met": fast_s <= TARGET_FAST_S_PER_QUERY,
-            "reason": None if fast_s <= TARGET_FAST_S_PER_QUERY else
-            f"the fast search scores {bank['fast']['comparisons_per_query_median']:.0f} pairs/query "
-            f"(13 x 1024 anchors alone are 13,312) at {rate:.0f} pair-scores/s on 2 CPU cores; 0.5 s would "
-            f"need ~{bank['fast']['comparisons_per_query_median'] / TARGET_FAST_S_PER_QUERY:.0f} pair-scores/s"}
-        out["speedup_fast_vs_greedy"] = {
-            "value": sp, "target": f">= {TARGET_SPEEDUP}", "met": sp >= TARGET_SPEEDUP,
-            "reason": None if sp >= TARGET_SPEEDUP else
-            f"bounded by the comparison ratio {cmp_ratio:.1f} (130,000 pairs vs "
-            f"{bank['fast']['comparisons_per_query_median']:.0f}): with k_ac=1024 anchors per object the fast "
-            f"search cannot be more than 130000/13312 = 9.8x cheaper in pair scores"}
+        fast = bank["fast"]
+        comps = fast["comparisons_per_query_median"]
+        out["fast_s_per_query_13x10000"] = _target(
+            fast["s_per_query_median"], TARGET_FAST_S_PER_QUERY, True,
+            f"the fast search scores {comps:.0f} pairs/query (13 x 1024 anchors alone are 13,312) at "
+            f"{fast['pair_scores_per_s']:.0f} pair-scores/s on 2 CPU cores; {TARGET_FAST_S_PER_QUERY} s would "
+            f"need ~{comps / TARGET_FAST_S_PER_QUERY:.0f} pair-scores/s")
+        out["speedup_fast_vs_greedy"] = _target(
+            bank["speedup_greedy_over_fast"], TARGET_SPEEDUP, False,
+            f"bounded by the comparison ratio {bank['comparison_ratio_greedy_over_fast']:.1f} (130,000 pairs vs "
+            f"{comps:.0f}): with k_ac=1024 anchors per object the fast search cannot be more than "
+            f"130000/13312 = 9.8x cheaper in pair scores")
         fb = bank.get("fast_batched")
         if fb:
-            bs, bsp = fb["s_per_query_mean"], bank["speedup_greedy_over_fast_batched"]
-            out["fast_s_per_query_13x10000_batched"] = {
-                "value": bs, "target": f"<= {TARGET_FAST_S_PER_QUERY}", "met": bs <= TARGET_FAST_S_PER_QUERY,
-                "reason": None if bs <= TARGET_FAST_S_PER_QUERY else
+            out["fast_s_per_query_13x10000_batched"] = _target(
+                fb["s_per_query_mean"], TARGET_FAST_S_PER_QUERY, True,
                 f"throughput cost per query with the anchor stage of {fb['query_batch']} queries shared; "
-                f"each query still scores ~{fb['comparisons_per_query_median']:.0f} pairs"}
-            out["speedup_fast_batched_vs_greedy"] = {
-                "value": bsp, "target": f">= {TARGET_SPEEDUP}", "met": bsp >= TARGET_SPEEDUP,
-                "reason": None if bsp >= TARGET_SPEEDUP else
+                f"each query still scores ~{fb['comparisons_per_query_median']:.0f} pairs")
+            out["speedup_fast_batched_vs_greedy"] = _target(
+                bank["speedup_greedy_over_fast_batched"], TARGET_SPEEDUP, False,
                 "greedy is single-query; the batched anchor pass is cheaper per pair than greedy's "
-                "single-query pass, so this can exceed the comparison ratio, but not by the factor needed"}
+                "single-query pass, so this can exceed the comparison ratio, but not by the factor needed")
         c2f = bank.get("c2f")
         if c2f:
-            cs, csp = c2f["s_per_query_median"], bank["speedup_greedy_over_c2f"]
             comps = c2f["comparisons_per_query_median"]
             anchor_pairs = PAPER_OBJECTS * C2F_COARSE_K + C2F_REFINE_OBJECTS * (PAPER_K_AC - C2F_COARSE_K)
-            out["c2f_s_per_query_13x10000"] = {
-                "value": cs, "target": f"<= {TARGET_C2F_S_PER_QUERY}", "met": cs <= TARGET_C2F_S_PER_QUERY,
-                "reason": None if cs <= TARGET_C2F_S_PER_QUERY else
+            out["c2f_s_per_query_13x10000"] = _target(
+                c2f["s_per_query_median"], TARGET_C2F_S_PER_QUERY, True,
                 f"c2f scores {comps:.0f} pairs/query at {c2f['pair_scores_per_s']:.0f} pair-scores/s; "
-                f"{TARGET_C2F_S_PER_QUERY} s would need ~{comps / TARGET_C2F_S_PER_QUERY:.0f} pair-scores/s"}
-            out["speedup_c2f_vs_greedy_13x10000"] = {
-                "value": csp, "target": f">= {TARGET_C2F_SPEEDUP}", "met": csp >= TARGET_C2F_SPEEDUP,
-                "reason": None if csp >= TARGET_C2F_SPEEDUP else
+                f"{TARGET_C2F_S_PER_QUERY} s would need ~{comps / TARGET_C2F_S_PER_QUERY:.0f} pair-scores/s")
+            out["speedup_c2f_vs_greedy_13x10000"] = _target(
+                bank["speedup_greedy_over_c2f"], TARGET_C2F_SPEEDUP, False,
                 f"bounded by the comparison ratio {bank['comparison_ratio_greedy_over_c2f']:.1f} "
                 f"({PAPER_OBJECTS * PAPER_REFS:,} pairs vs {comps:.0f}); the c2f anchor stage alone is "
                 f"{PAPER_OBJECTS} x {C2F_COARSE_K} + {C2F_REFINE_OBJECTS} x {PAPER_K_AC - C2F_COARSE_K} = "
                 f"{anchor_pairs:,} pairs (at most {PAPER_OBJECTS * PAPER_REFS / anchor_pairs:.1f}x), the "
-                f"rotation stage adds the rest"}
+                f"rotation stage adds the rest")
         c2fh = bank.get("c2f_halving")
         if c2fh:
-            hs, hsp = c2fh["s_per_query_median"], bank["speedup_greedy_over_c2f_halving"]
-            out["c2f_halving_s_per_query_13x10000"] = {
-                "value": hs, "target": f"<= {TARGET_C2F_S_PER_QUERY}", "met": hs <= TARGET_C2F_S_PER_QUERY,
-                "reason": None if hs <= TARGET_C2F_S_PER_QUERY else
+            out["c2f_halving_s_per_query_13x10000"] = _target(
+                c2fh["s_per_query_median"], TARGET_C2F_S_PER_QUERY, True,
                 f"c2f halving scores {c2fh['comparisons_per_query_median']:.0f} pairs/query at "
-                f"{c2fh['pair_scores_per_s']:.0f} pair-scores/s"}
-            out["speedup_c2f_halving_vs_greedy_13x10000"] = {
-                "value": hsp, "target": f">= {TARGET_C2F_SPEEDUP}", "met": hsp >= TARGET_C2F_SPEEDUP,
-                "reason": None if hsp >= TARGET_C2F_SPEEDUP else
-                f"bounded by the comparison ratio {bank['comparison_ratio_greedy_over_c2f_halving']:.1f}"}
+                f"{c2fh['pair_scores_per_s']:.0f} pair-scores/s")
+            out["speedup_c2f_halving_vs_greedy_13x10000"] = _target(
+                bank["speedup_greedy_over_c2f_halving"], TARGET_C2F_SPEEDUP, False,
+                f"bounded by the comparison ratio {bank['comparison_ratio_greedy_over_c2f_halving']:.1f}")
     else:
         reason = (bank or {}).get("reason") or f"{key} not run in this mode ({res.get('mode')})"
         for k, t in (("fast_s_per_query_13x10000", f"<= {TARGET_FAST_S_PER_QUERY}"),
@@ -226,13 +220,10 @@ def evaluate_targets(res: dict) -> dict:
                      ("c2f_halving_s_per_query_13x10000", f"<= {TARGET_C2F_S_PER_QUERY}"),
                      ("speedup_c2f_halving_vs_greedy_13x10000", f">= {TARGET_C2F_SPEEDUP}")):
             out[k] = {"value": None, "target": t, "met": None, "reason": reason}
-    cb = res["cache_bytes_13x10000"]
-    for s, v in cb.items():
-        met = v["bytes"] <= TARGET_CACHE_BYTES
-        out[f"cache_bytes_13x10000_{s}px"] = {
-            "value": v["bytes"], "target": f"<= {TARGET_CACHE_BYTES:.0f}", "met": met,
-            "reason": None if met else f"L={v['L']} locations x 128 channels x 2 bytes = "
-                                       f"{v['per_reference_bytes']} bytes per reference"}
+    for s, v in res["cache_bytes_13x10000"].items():
+        out[f"cache_bytes_13x10000_{s}px"] = _target(
+            v["bytes"], TARGET_CACHE_BYTES, True,
+            f"L={v['L']} locations x 128 channels x 2 bytes = {v['per_reference_bytes']} bytes per reference")
     return out
 
 

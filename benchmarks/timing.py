@@ -220,8 +220,8 @@ def log(msg: str) -> None:
     print(f"[bench {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-MEASURED_MODULES = ("model", "fusion_kernel", "retrieval", "features", "datasets", "render", "rotations", "losses",
-                    "train", "augment")
+MEASURED_MODULES = ("model", "model_config", "fusion_kernel", "retrieval", "bank", "features", "datasets", "render",
+                    "rotations", "losses", "train", "augment")
 
 
 def source_hashes() -> dict:
