@@ -325,7 +325,6 @@ class OrientationNet(nn.Module):
             b = torch.stack([t.detach().float() for _, t in params]).contiguous()  # (n, K)
             offs = [sl.start for sl in self.scale_slices.values()]
             widths = [sl.stop - sl.start for sl in self.scale_slices.values()]
-            rows = rows.to(dtype=torch.int64).contiguous()
             fused = torch.stack([kernel.fuse_levels(q[i].contiguous(), r, rows, offs, widths, w, b, mode)
                                  for i in range(q.shape[0])], 0)
             return self.fusion.head(fused)
