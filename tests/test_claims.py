@@ -134,9 +134,15 @@ def test_c2f_claims_need_the_whole_interval_within_one_point(tmp_path):
         {"method": "greedy", "median s/query": 1.0}, {"method": "fast (converge)", "median s/query": 0.2},
         {"method": "coarse-to-fine (converge)", "median s/query": 0.05},
         {"method": "coarse-to-fine halving (converge)", "median s/query": 0.1}],
-        "main_fast_method": "fast (converge)", "agreement_30deg": {}}))
+        "main_fast_method": "fast (converge)", "agreement_30deg": {},
+        "c2f_agreement_with_fast": {"coarse-to-fine (converge)": 0.7, "coarse-to-fine halving (converge)": 1.0},
+        "c2f_selection": {"min_agreement": 0.99, "chosen": {"halving": {"coarse_k": 8, "refine_objects": 2,
+                                                                        "agreement_with_fast": 1.0, "met": True}}}}))
     ids = {c["id"]: c for c in build_claims(tmp_path)}
     c, h = ids["c2f_minus_fast"], ids["c2f_halving_minus_fast"]
+    # the unseen agreement and the settings chosen on seen views travel with the claim (only where recorded)
+    assert c["unseen_same_reference_as_fast"] == 0.7 and "settings_chosen_on_seen_val" not in c
+    assert h["settings_chosen_on_seen_val"]["coarse_k"] == 8 and h["unseen_same_reference_as_fast"] == 1.0
     assert c["verdict"] == "c2f loses accuracy" and c["ci95"][1] < 0 and c["speedup_over_fast"] == 4.0
     assert h["ours"] == 0.0 and h["ci95"] == [0.0, 0.0] and h["verdict"] == "within 1 point"
     assert h["speedup_over_fast"] == 2.0

@@ -42,6 +42,19 @@ def test_bad_variant_values_are_named():
         check_parameters("06_reference_count", {"reference_counts": [6, 4800]})
 
 
+@pytest.mark.parametrize("value,match", [
+    ({"coarse_k": [8, 8]}, "'coarse_k' expects a list of distinct ints >= 1"),
+    ({"coarse_k": [16]}, "'coarse_k' expects candidates < k_ac=16"),  # smoke k_ac is 16
+    ({"refine_objects": []}, "'refine_objects' expects a list of distinct ints >= 1, got"),
+    ({"halving_refine_objects": [0]}, "'halving_refine_objects' expects"),
+    ({"c2f_min_agreement": 1.5}, "'c2f_min_agreement' expects a share in"),
+])
+def test_bad_coarse_to_fine_candidates_are_named(value, match):
+    with pytest.raises(ParameterError, match=match):
+        check_parameters("07_fast_vs_greedy", value)
+    check_parameters("07_fast_vs_greedy", {"coarse_k": [], "halving_refine_objects": []})  # empty: rows skipped
+
+
 def test_every_preset_passes_the_value_check():
     for preset in runner.PRESETS:
         for nb in runner.notebooks():
@@ -62,6 +75,18 @@ def test_runner_refuses_a_bad_value_before_any_notebook_runs(tmp_path, monkeypat
     monkeypatch.setattr("papermill.execute_notebook", lambda *a, **k: ran.append(a))
     assert runner.main(["smoke"]) == 2
     assert "'epochs' expects an int >= 1" in capsys.readouterr().err and not ran
+
+
+def test_only_keeps_the_timings_of_the_notebooks_it_does_not_run(tmp_path, monkeypatch):
+    """A fresh clone has committed timings but no runner state: --only must not drop the others'."""
+    monkeypatch.setattr(runner, "REPO_ROOT", tmp_path)
+    out = tmp_path / "reports" / "smoke"
+    out.mkdir(parents=True)
+    (out / "timings.json").write_text(json.dumps({"03_evaluate": 123.0, "07_fast_vs_greedy": 9.0}))
+    monkeypatch.setattr("papermill.execute_notebook", lambda src, dst, parameters, **kw: open(dst, "w").write("{}"))
+    runner.run("smoke", only=["07_fast_vs_greedy"], html=False, report=False)
+    t = json.loads((out / "timings.json").read_text())
+    assert t["03_evaluate"] == 123.0 and t["07_fast_vs_greedy"] != 9.0 and set(t) == {"03_evaluate", "07_fast_vs_greedy"}
 
 
 @pytest.mark.parametrize("killed_at", range(len(runner.notebooks())))

@@ -239,14 +239,16 @@ def fast_claims(d: Path) -> list[dict]:
                       round(fg["greedy"]["seconds_per_query"] / fg["fast"]["seconds_per_query"], 2),
                       g["median s/query"] / f["median s/query"], None,
                       "holds" if f["median s/query"] < g["median s/query"] else "reversed"))
-    return out + _c2f_claims(d, t, key, pf)
+    return out + _c2f_claims(d, m, t, key, pf)
 
 
 #: notebook 07's coarse-to-fine rows and the per-query files it writes for them
 C2F_ROWS = {"c2f": "coarse-to-fine (converge)", "c2f_halving": "coarse-to-fine halving (converge)"}
+C2F_FAMILIES = {"c2f": "one cut", "c2f_halving": "halving"}  # keys of metrics.json's c2f_selection.chosen
 
 
-def _c2f_claims(d: Path, table: pd.DataFrame, fast_key: str, per_query_fast: pd.DataFrame | None) -> list[dict]:
+def _c2f_claims(d: Path, m: dict, table: pd.DataFrame, fast_key: str,
+                per_query_fast: pd.DataFrame | None) -> list[dict]:
     """Coarse-to-fine search (ours) against the authors' fast retrieval on the same queries.
 
     The target (#15) is "within 1 point": it holds only when the whole paired 95 % interval
@@ -264,6 +266,12 @@ def _c2f_claims(d: Path, table: pd.DataFrame, fast_key: str, per_query_fast: pd.
                    else "c2f gains accuracy" if lo > 0 else "no difference beyond noise, interval wider than 1 point")
         sec = table.loc[table["method"] == row, "median s/query"]
         extra = {"speedup_over_fast": round(float(fast_s.iloc[0] / sec.iloc[0]), 2)} if len(sec) and len(fast_s) else {}
+        agree = (m.get("c2f_agreement_with_fast") or {}).get(row)
+        if agree is not None:
+            extra["unseen_same_reference_as_fast"] = round(float(agree), 3)
+        picked = ((m.get("c2f_selection") or {}).get("chosen") or {}).get(C2F_FAMILIES[stem])
+        if picked:  # the settings, chosen on held-out views of seen objects (helpers.c2f_select)
+            extra["settings_chosen_on_seen_val"] = picked
         out.append(record(f"{stem}_minus_fast", f"{row} keeps fast retrieval's ({fast_key}) unseen Rota. Acc. "
                           "within 1 point (c2f minus fast, points, paired)", None, c["diff_pts"], c["ci"], verdict,
                           **extra))

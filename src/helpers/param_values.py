@@ -24,7 +24,7 @@ _MIN_INT = {
     "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 1, "fps_k": 1,
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
-    "occluded_queries": 0, "eval_refs": 0, "coarse_k": 0, "refine_objects": 1, "halving_refine_objects": 0,
+    "occluded_queries": 0, "eval_refs": 0,
     "n_seeds": 1, "test_queries": 0,
 }
 _CHOICES = {
@@ -93,6 +93,15 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         d = P["device"]
         if not (d in ("auto", "cpu", "cuda") or (d.startswith("cuda:") and d[5:].isdigit())):
             raise _err(notebook, "device", "'auto', 'cpu', 'cuda' or 'cuda:N'", d)
+    for name, may_be_empty in (("coarse_k", True), ("refine_objects", False), ("halving_refine_objects", True)):
+        v = P.get(name)  # coarse-to-fine candidates (07): chosen among on held-out views of seen objects
+        if v is not None and ((not v and not may_be_empty) or len(set(v)) != len(v) or any(x < 1 for x in v)):
+            raise _err(notebook, name, f"a list of distinct ints >= 1{' (empty: skip)' if may_be_empty else ''}", v)
+    if "coarse_k" in P and "k_ac" in P and any(x >= P["k_ac"] for x in P["coarse_k"]):
+        raise _err(notebook, "coarse_k", f"candidates < k_ac={P['k_ac']} (a coarse round smaller than the anchors)",
+                   P["coarse_k"])
+    if "c2f_min_agreement" in P and not 0.0 < P["c2f_min_agreement"] <= 1.0:
+        raise _err(notebook, "c2f_min_agreement", "a share in (0, 1]", P["c2f_min_agreement"])
     if "lr_milestones" in P:
         m = P["lr_milestones"]
         if list(m) != sorted(set(m)) or any(x < 1 for x in m):

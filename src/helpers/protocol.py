@@ -149,15 +149,18 @@ def held_out_result(model: Any, data: StudyData, search: dict[str, Any], device:
 
 # ------------------------------------------------------------------ fast vs greedy (paper Table 4)
 
-def query_features(model: Any, data: StudyData, objects: list[str], device: str = "auto"):
-    """(features (N, C, L), [(object, index)]) of the test queries of ``objects``, in order."""
+def query_features(model: Any, data: StudyData, objects: list[str], device: str = "auto", kind: str = "test_q"):
+    """(features (N, C, L), [(object, index)]) of the ``kind`` queries of ``objects``, in order
+    ("test_q": test queries; "val_q": held-out views, rendered for the seen objects' model selection)."""
     import torch
 
     from .study import encode_queries
 
+    if kind not in ("test_q", "val_q"):
+        raise ValueError(f"query_features: kind must be 'test_q' or 'val_q', got {kind!r}")
     feats, meta = [], []
     for n in objects:
-        q = encode_queries(model, data.test_q[n], device)
+        q = encode_queries(model, getattr(data, kind)[n], device)
         feats.append(q)
         meta += [(n, i) for i in range(len(q))]
     return torch.cat(feats), meta

@@ -294,4 +294,13 @@ def _c2f_lines(m: dict) -> list[str]:
     """Coarse-to-fine rows (ours) against fast retrieval, paired, when notebook 07 ran them."""
     return [f"- {k} minus fast (same queries, paired): {v['diff_pts']:+.1f} points, 95 % CI "
             f"[{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}] ({v['n_queries']} queries)"
-            for k, v in (m.get("c2f_minus_fast") or {}).items()]
+            for k, v in (m.get("c2f_minus_fast") or {}).items()] + _c2f_selection_lines(m)
+
+
+def _c2f_selection_lines(m: dict) -> list[str]:
+    """The coarse-to-fine settings and how they were chosen (held-out views of seen objects)."""
+    sel = m.get("c2f_selection") or {}
+    return [f"- coarse-to-fine {fam}: coarse_k {c['coarse_k']}, refine_objects {c['refine_objects']}, chosen on "
+            f"held-out views of seen objects (same reference as fast on {100 * c['agreement_with_fast']:.1f} % of "
+            f"them; bar {100 * sel['min_agreement']:.0f} % {'met' if c['met'] else 'NOT met: most agreeing kept'}; "
+            f"{c['mean_comparisons']:.0f} pair scores/query)" for fam, c in sorted((sel.get("chosen") or {}).items(), key=lambda kv: kv[0] != "one cut")]

@@ -107,7 +107,8 @@ def run(preset: str, only: list[str] | None = None, html: bool = True, report: b
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE_FILE
     state = {} if restart else _read_state(state_path)
-    timings = {k: v for k, v in _read_state(out / "timings.json").items() if k in state}
+    # Timings of notebooks this call does not run (``--only``) stay: they time the outputs that stay.
+    timings = {k: v for k, v in _read_state(out / "timings.json").items() if k in state or k not in names}
     for n in names:
         key = run_key(params[n])
         dst = out / f"{n}.ipynb"
