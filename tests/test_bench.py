@@ -131,3 +131,16 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
               "real_rot_acc_c2f_pct"):
         assert k in res["summary"], k
     _positive(res["memory"]["peak"], "maxrss_bytes")
+
+
+def test_a_skipped_headline_bank_is_an_unmet_target():
+    """A full run that had no disk for 13 x 10,000 must say so (target unmet, exit code 3), not shrink silently."""
+    bench = _load_bench()
+    key = f"{bench.PAPER_OBJECTS}x{bench.PAPER_REFS}"
+    res = {"retrieval_synthetic": {"banks": {key: {"skipped": True, "reason": "needs 9 bytes, only 1 free"}}},
+           "cache_bytes_13x10000": {}}
+    t = bench.evaluate_targets(res)
+    assert t["bank_13x10000_measured"]["met"] is False and "only 1 free" in t["bank_13x10000_measured"]["reason"]
+    assert t["c2f_s_per_query_13x10000"]["met"] is None  # its numbers are absent, with the same reason
+    assert "bank_13x10000_measured" not in bench.evaluate_targets({"retrieval_synthetic": {"banks": {}},
+                                                                   "cache_bytes_13x10000": {}})
