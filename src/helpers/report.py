@@ -129,8 +129,16 @@ def _claims(claims: list[dict]) -> list[str]:
     if not claims:
         return []
 
-    def num(v: Any) -> str:
-        return "—" if v is None else f"{v:.2f}" if abs(v) < 1.5 else f"{v:.1f}"
+    def num(v: Any, nd: int | None = None) -> str:
+        if v is None:
+            return "—"
+        return f"{v:.{nd if nd is not None else 2 if abs(v) < 1.5 else 1}f}"
+
+    def row_digits(c: dict) -> int:
+        # One precision for a value and its interval (no "[-1.8, 1.25]"): 2 decimals for fractions and
+        # differences of a few points, 1 from 10 on.
+        vals = [abs(v) for v in [c["ours"], *(c["ci95"] or [])] if v is not None]
+        return 2 if vals and max(vals) < 10 else 1
 
     seeded = any(c.get("seed_spread_pts") is not None for c in claims)
     out = ["## Claims (`claims.json`)", "",
@@ -143,9 +151,10 @@ def _claims(claims: list[dict]) -> list[str]:
               "interval excludes 0)." if seeded else ""), "",
            "| id | claim | ours | 95 % CI | seed spread | paper | verdict |", "|---|---|---:|---|---:|---:|---|"]
     for c in claims:
-        ci = "—" if c["ci95"] is None else f"[{num(c['ci95'][0])}, {num(c['ci95'][1])}]"
+        nd = row_digits(c)
+        ci = "—" if c["ci95"] is None else f"[{num(c['ci95'][0], nd)}, {num(c['ci95'][1], nd)}]"
         sp = c.get("seed_spread_pts")
-        out.append(f"| `{c['id']}` | {c['claim']} | {num(c['ours'])} | {ci} | {'—' if sp is None else num(sp)} | "
+        out.append(f"| `{c['id']}` | {c['claim']} | {num(c['ours'], nd)} | {ci} | {'—' if sp is None else num(sp)} | "
                    f"{num(c['paper'])} | {c['verdict']} |")
     return out + [""]
 
@@ -292,8 +301,8 @@ def _fast(d: Path) -> list[str]:
 
 def _c2f_lines(m: dict) -> list[str]:
     """Coarse-to-fine rows (ours) against fast retrieval, paired, when notebook 07 ran them."""
-    return [f"- {k} minus fast (same queries, paired): {v['diff_pts']:+.1f} points, 95 % CI "
-            f"[{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}] ({v['n_queries']} queries)"
+    return [f"- {k} minus fast (same queries, paired): {v['diff_pts']:+.2f} points, 95 % CI "
+            f"[{v['ci'][0]:+.2f}, {v['ci'][1]:+.2f}] ({v['n_queries']} queries)"
             for k, v in (m.get("c2f_minus_fast") or {}).items()] + _c2f_selection_lines(m)
 
 
