@@ -26,12 +26,37 @@ def sharded_encoder(net: torch.nn.Module, rank: int, world: int):
     fusion head, used outside the wrapped forward, gets the plain gradient on every process
     and is averaged to itself).
     """
-    from torch.distributed.nn.functional import all_gather
-
     def encode(images: torch.Tensor) -> torch.Tensor:
-        return torch.cat(all_gather(net(images.tensor_split(world)[rank].contiguous())), 0)
+        return _GatherShares.apply(net(images.tensor_split(world)[rank].contiguous()), rank, world)
 
     return encode
+
+
+class _GatherShares(torch.autograd.Function):
+    """Concatenate every process's equal-sized share along dim 0, with autograd.
+
+    Backward: the gradients of the whole concatenation are summed over the processes
+    (all-reduce) and each process keeps its own share's rows: the reduce-scatter of
+    ``torch.distributed.nn.functional.all_gather`` (deprecated in torch 2.13), written with
+    collectives that gloo and nccl both have.
+    """
+
+    @staticmethod
+    def forward(ctx, share: torch.Tensor, rank: int, world: int) -> torch.Tensor:
+        import torch.distributed as dist
+
+        ctx.rank, ctx.world = rank, world
+        parts = [torch.empty_like(share) for _ in range(world)]
+        dist.all_gather(parts, share.contiguous())
+        return torch.cat(parts, 0)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        import torch.distributed as dist
+
+        grad = grad.contiguous().clone()
+        dist.all_reduce(grad)
+        return grad.chunk(ctx.world, 0)[ctx.rank], None, None
 
 
 def barrier() -> None:
