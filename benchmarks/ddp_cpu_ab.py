@@ -23,7 +23,9 @@ Run: ``.venv/bin/python benchmarks/ddp_cpu_ab.py`` (about 5 minutes on 2 cores; 
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
+import os
 import socket
 import statistics
 import sys
@@ -35,6 +37,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 SIZE = 64
+GLOO_TIMEOUT = datetime.timedelta(minutes=10)  # a collective waiting longer than this raises instead of hanging
 
 
 def _data(objects: int, refs: int, queries: int):
@@ -67,7 +70,8 @@ def _worker(rank: int, world: int, port: int, out: str, threads: int, args) -> N
 
     refs, queries = _data(args.objects, args.refs, args.queries)
     if world > 1:
-        dist.init_process_group("gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=world)
+        dist.init_process_group("gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=world,
+                                timeout=GLOO_TIMEOUT)
     try:
         train(_cfg(args, threads), refs, queries, {}, {}, out, resume=False)
     finally:
@@ -96,6 +100,13 @@ def _run(world: int, threads: int, out: Path, args) -> dict:
             "images_per_s_per_epoch": speeds, "images_per_s_median": statistics.median(speeds[1:]),
             "train_loss_per_epoch": [h["train_loss"] for h in hist], "global_step": ck["global_step"],
             "model": ck["model"]}
+
+
+def _weight_diffs(a: dict, b: dict):
+    """|a - b| of every weight of two state dicts, flattened into one tensor."""
+    import torch
+
+    return torch.cat([(a[k] - b[k]).abs().flatten() for k in a])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -127,15 +138,14 @@ def main(argv: list[str] | None = None) -> int:
     med = {k: statistics.median(r["images_per_s_median"] for r in v) for k, v in runs.items() if v}
     a, b = runs["A"][0], runs["B"][0]
     loss_diff = float(np.max(np.abs(np.subtract(a["train_loss_per_epoch"], b["train_loss_per_epoch"]))))
-    w = torch.cat([(a["model"][k] - b["model"][k]).abs().flatten() for k in a["model"]])
-    same_seed_a = float(max((runs["A"][0]["model"][k] - r["model"][k]).abs().max()
-                            for r in runs["A"][1:] for k in r["model"]) if len(runs["A"]) > 1 else 0.0)
+    w = _weight_diffs(a["model"], b["model"])
+    same_seed_a = max((float(_weight_diffs(a["model"], r["model"]).max()) for r in runs["A"][1:]), default=0.0)
     res = {
         "what": " ".join(__doc__.split("\n\n")[0].split()),
         "setup": {"image_size": SIZE, "batch_size": 16, "images_per_step": 48, "epochs": args.epochs,
                   "steps_per_epoch": args.steps, "pairs": args.pairs, "objects": args.objects,
                   "refs_per_object": args.refs, "queries_per_object": args.queries, "dropout": 0.0,
-                  "torch": torch.__version__, "cpu_count": __import__("os").cpu_count(),
+                  "torch": torch.__version__, "cpu_count": os.cpu_count(),
                   "date": time.strftime("%Y-%m-%d %H:%M:%S"), "sources": source_hashes()},
         "runs": {k: [{kk: vv for kk, vv in r.items() if kk != "model"} for r in v] for k, v in runs.items()},
         "images_per_s_median": med,

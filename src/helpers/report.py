@@ -312,4 +312,5 @@ def _c2f_selection_lines(m: dict) -> list[str]:
     return [f"- coarse-to-fine {fam}: coarse_k {c['coarse_k']}, refine_objects {c['refine_objects']}, chosen on "
             f"held-out views of seen objects (same reference as fast on {100 * c['agreement_with_fast']:.1f} % of "
             f"them; bar {100 * sel['min_agreement']:.0f} % {'met' if c['met'] else 'NOT met: most agreeing kept'}; "
-            f"{c['mean_comparisons']:.0f} pair scores/query)" for fam, c in sorted((sel.get("chosen") or {}).items(), key=lambda kv: kv[0] != "one cut")]
+            f"{c['mean_comparisons']:.0f} pair scores/query)"
+            for fam, c in sorted((sel.get("chosen") or {}).items(), key=lambda kv: kv[0] != "one cut")]  # one cut first
