@@ -109,8 +109,9 @@ class Manifest:
         return [o.name for o in self.objects if o.role == "train" and o.split == split]
 
     def seen_objects(self, split: int) -> list[str]:
-        """Benchmark objects trained on for ``split`` (those of the other splits)."""
-        unseen = set(self.split_objects(split))
+        """Benchmark objects trained on for ``split`` (those of the other splits); split 0: all of
+        them (the all-objects model, tested on the held-out objects)."""
+        unseen = set() if split == 0 else set(self.split_objects(split))
         return [o.name for o in self.objects if o.role == "train" and o.name not in unseen]
 
     def held_out_objects(self) -> list[str]:

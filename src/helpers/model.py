@@ -25,6 +25,7 @@ from torch.utils.checkpoint import checkpoint
 from . import fusion_kernel
 from .backbone import Decoder, Encoder
 from .model_config import FUSIONS, LEVELS, ModelConfig, level_shapes  # noqa: F401  (re-exported)
+from .precision import autocast
 
 LOCAL_NORM_EPS = 1e-2
 """Added to the local std (intensity units, image in [0, 1]).
@@ -207,6 +208,10 @@ class OrientationNet(nn.Module):
         # it builds, "eager" always the PyTorch ops, "kernel" insists on the kernel. Not part of
         # the config: both compute the same scores (to float32 rounding).
         self.fusion_backend = "auto"
+        # Precision of the encoder-decoder's convolutions: "fp32" or "bf16" (autocast, see
+        # helpers.precision). A runtime setting like fusion_backend, not part of the config:
+        # training records the one it used in its checkpoints.
+        self.precision = "fp32"
         # NHWC convolutions are ~1.2x faster on CPU here (oneDNN), forward and backward;
         # load_state_dict copies into these parameters and keeps their layout.
         self.to(memory_format=torch.channels_last)
@@ -235,7 +240,10 @@ class OrientationNet(nn.Module):
                 raise ValueError(f"images: float images must lie in [0, 1] (got [{float(images.min()):.3g}, "
                                  f"{float(images.max()):.3g}]); divide 8-bit values by 255")
         x = self.preprocess(images.to(next(self.parameters()).device))
-        maps = self.decoder(*self.encoder(x))
+        with autocast(self.precision, x.device):
+            maps = self.decoder(*self.encoder(x))
+        # Features leave the network as float32 (normalised, scored and cached as before).
+        maps = {lv: m.float() for lv, m in maps.items()}
         if self.cfg.is_global:
             return F.normalize(maps[13].mean(dim=(2, 3)), dim=1).unsqueeze(-1)
         flat = [F.normalize(maps[lv], dim=1).flatten(2) for lv in self.cfg.levels]

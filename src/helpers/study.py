@@ -91,8 +91,10 @@ class StudyData:
 
 
 def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bool = True,
-                 manifest: Manifest | None = None) -> StudyData:
+                 manifest: Manifest | None = None, test: bool = True) -> StudyData:
     """Render (or load) references and queries of ``objects`` (default: all).
+
+    ``test=False`` skips the test and occluded queries (what training alone needs).
 
     Training and validation queries are rendered only for benchmark (``train``
     role) objects; test and occluded queries use the test background photos.
@@ -112,6 +114,8 @@ def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bo
             plan.append(("val_q", n, ViewSetSpec(n, "query", cfg.n_val_queries, cfg.seed + 1, rc, plain, "train")))
             # Clean (reference-style) views at other rotations, for the clean-to-real-like curriculum.
             plan.append(("clean_q", n, ViewSetSpec(n, "reference", cfg.n_train_queries, cfg.seed + 1000, rc)))
+        if not test:
+            continue
         plan.append(("test_q", n, ViewSetSpec(n, "query", cfg.n_test_queries, cfg.seed + 2, rc, plain, "test")))
         if occluded:
             plan.append(("occluded_q", n, ViewSetSpec(n, "query", cfg.n_test_queries, cfg.seed + 3, rc, occ, "test")))
@@ -166,12 +170,10 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
     missing = [n for n in seen if n not in data.train_q]
     if missing:
         raise ValueError(f"train_or_load: no training queries rendered for {missing}; prepare_data with them")
+    if hasattr(train_cfg, "resolved"):  # "auto" precision keys the run by what it means on this machine
+        train_cfg = train_cfg.resolved()
     curriculum = bool(getattr(train_cfg, "clean_steps", 0))
-    key = stable_hash({"split": split, "train": _train_key(train_cfg),
-                       "refs": [data.key(n) for n in seen], "train_q": [data.key(n, "train_q") for n in seen],
-                       "val_q": [data.key(n, "val_q") for n in seen], "val_refs": val_refs_per_object,
-                       **({"clean_q": [data.key(n, "clean_q") for n in seen]} if curriculum else {})})
-    run = cache_dir(data.cfg.cache_dir or None) / "runs" / f"split{split}-{key}"
+    run = run_folder(split, train_cfg, data, val_refs_per_object)
     done = run / "done.json"
     if not done.exists():
         from .distributed import distributed_world
@@ -195,6 +197,20 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
     model.eval()
     history = read_json(run / "history.json") if (run / "history.json").exists() else {}
     return model, run, {"history": history, **info}
+
+
+def run_folder(split: int, train_cfg: Any, data: StudyData, val_refs_per_object: int = 256) -> Path:
+    """``<cache>/runs/split<k>-<hash>``: the run folder of :func:`train_or_load`, keyed by the
+    training config (precision resolved), the split and the render keys of every set it uses."""
+    if hasattr(train_cfg, "resolved"):
+        train_cfg = train_cfg.resolved()
+    seen = data.manifest.seen_objects(split)
+    curriculum = bool(getattr(train_cfg, "clean_steps", 0))
+    key = stable_hash({"split": split, "train": _train_key(train_cfg),
+                       "refs": [data.key(n) for n in seen], "train_q": [data.key(n, "train_q") for n in seen],
+                       "val_q": [data.key(n, "val_q") for n in seen], "val_refs": val_refs_per_object,
+                       **({"clean_q": [data.key(n, "clean_q") for n in seen]} if curriculum else {})})
+    return cache_dir(data.cfg.cache_dir or None) / "runs" / f"split{split}-{key}"
 
 
 def _train_key(cfg: Any) -> dict:

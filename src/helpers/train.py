@@ -35,6 +35,7 @@ from .distributed import barrier, distributed_world, sharded_encoder  # noqa: F4
 from .fileio import atomic_write_bytes, atomic_write_text
 from .losses import pair_weights, weighted_info_nce
 from .model import ModelConfig, OrientationNet, images_to_tensor
+from .precision import PRECISIONS, resolve_precision
 from .rotations import nearest
 from .validation import (ROT_THRESHOLD_DEG, best_validation, plot_history, selection_metric,  # noqa: F401
                          validate)
@@ -84,6 +85,9 @@ class TrainConfig:
         model: network configuration, embedded in checkpoints.
         progress: show tqdm bars.
         val_batch_size: images per forward pass during validation.
+        precision: ``"auto"`` (bf16 autocast where the device has native bf16, else fp32;
+            see :mod:`helpers.precision`), ``"fp32"`` or ``"bf16"``. :func:`train` resolves
+            ``"auto"`` first, so checkpoints record the precision that was used.
         select_on: validation metric that picks ``best.pt``: ``"mean_acc"``
             (mean of class and rotation accuracy; steadier with few
             validation queries, where rotation accuracy alone moves by single
@@ -112,6 +116,7 @@ class TrainConfig:
     progress: bool = True
     val_batch_size: int = 32
     select_on: str = "mean_acc"
+    precision: str = "auto"
 
     def __post_init__(self) -> None:
         def pos_int(name: str, allow_none: bool = False) -> None:
@@ -154,6 +159,8 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
                 raise ValueError(f"TrainConfig.{name}: expected an int >= 0, got {v!r}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"TrainConfig.precision: expected one of {PRECISIONS}, got {self.precision!r}")
         if self.select_on not in SELECT_ON:
             raise ValueError(f"TrainConfig.select_on: expected one of {SELECT_ON}, got {self.select_on!r}")
         if not isinstance(self.device, str):
@@ -166,6 +173,10 @@ class TrainConfig:
             self.model = ModelConfig.from_dict(self.model)
         if not isinstance(self.model, ModelConfig):
             raise ValueError(f"TrainConfig.model: expected a ModelConfig, got {type(self.model).__name__}")
+
+    def resolved(self) -> "TrainConfig":
+        """This config with ``precision="auto"`` replaced by what it means on its device."""
+        return replace(self, precision=resolve_precision(self.precision, resolve_device(self.device)))
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -380,6 +391,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    cfg = cfg.resolved()
     names = sorted(train_refs)
     if not names:
         raise ValueError("train_refs: expected at least one training object")
@@ -419,6 +431,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
         torch.manual_seed(cfg.seed)
         rng = np.random.default_rng(cfg.seed)
         model = OrientationNet(cfg.model).to(device)
+        model.precision = cfg.precision
         encode = None
         if world > 1:  # every process holds the same weights; gradients are averaged by DDP
             from torch.nn.parallel import DistributedDataParallel
