@@ -32,6 +32,7 @@ _CHOICES = {
     "random_ref": ("own", "any"),
     "fusion": ("adaptive", "sigmoid", "softmax", "avg"),
     "eval_method": ("fast", "greedy"),
+    "models": ("train", "zoo"),
 }
 
 

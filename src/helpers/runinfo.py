@@ -47,8 +47,12 @@ def device_info(device: str = "auto") -> dict[str, Any]:
     from .device import resolve_device
 
     d = resolve_device(device)
+    from .precision import native_bf16
+
     info = {"requested": device, "resolved": str(d), "torch_threads": torch.get_num_threads(),
-            "cpu_count": os.cpu_count(), "cpu": platform.processor() or platform.machine()}
+            "cpu_count": os.cpu_count(), "cpu": platform.processor() or platform.machine(),
+            # what TrainConfig(precision="auto") trains with here (helpers.precision)
+            "native_bf16": native_bf16(d), "auto_precision": "bf16" if native_bf16(d) else "fp32"}
     if d.type == "cuda":
         info["gpu"] = torch.cuda.get_device_name(d)
     else:

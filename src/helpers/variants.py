@@ -41,7 +41,7 @@ import pandas as pd
 from .fileio import atomic_write_json, atomic_write_text, stable_hash
 from .metrics import paired_difference, summarise_queries
 from .model import LEVELS
-from .study import StudyData, evaluate, reference_bank, train_or_load
+from .study import StudyData, evaluate, reference_bank
 from .tables import write_table
 
 NOISE_NOTE = ("claims compare object-averaged Rota. Acc. of two variants on the same queries; ci is a "
@@ -111,16 +111,20 @@ def with_seeds(configs: dict[str, Any], seeded: list[str], n_seeds: int) -> dict
             for k, c in configs.items()}
 
 
-def train_variants(configs: dict[str, Any], data: StudyData, split: int, val_refs: int) -> dict[str, list[Trained]]:
+def train_variants(configs: dict[str, Any], data: StudyData, split: int, val_refs: int,
+                   models: str = "train") -> dict[str, list[Trained]]:
     """Train (or load from the cache) every labelled TrainConfig (or list of them, one per seed)
     on split ``split``'s seen objects; validation uses ``val_refs`` references per seen object.
+    ``models="zoo"`` loads each variant's committed zoo model instead (:func:`helpers.zoo.model_for`).
     Returns label -> [Trained per seed]. Progress bars per epoch."""
+    from .zoo import model_for
+
     out: dict[str, list[Trained]] = {}
     for label, cfgs in configs.items():
         out[label] = []
         for cfg in _as_list(cfgs):
             print(f"variant {label!r} seed {cfg.seed}", flush=True)
-            model, run, info = train_or_load(split, cfg, data, val_refs_per_object=val_refs)
+            model, run, info = model_for(split, cfg, data, val_refs, models)
             out[label].append(Trained(model, run, {"seed": cfg.seed, **info}))
     return out
 
