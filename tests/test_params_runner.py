@@ -66,7 +66,7 @@ def test_kernel_namespace_check():
 
 
 def test_all_presets_validate_and_bad_preset_is_refused(tmp_path, monkeypatch):
-    for preset in ("smoke", "quick", "paper"):
+    for preset in ("smoke", "quick", "long", "paper"):
         for n in notebooks():
             p = preset_parameters(preset, n)
             assert p["out_dir"] == f"reports/{preset}/{n}"

@@ -120,3 +120,51 @@ def test_precision_auto_follows_the_hardware_and_bf16_stays_close():
     assert (f32 - f16).abs().max() < 0.1 and torch.nn.functional.cosine_similarity(f32, f16, dim=1).min() > 0.97
     with autocast("fp32", cpu):
         assert not torch.is_autocast_enabled("cpu")
+
+
+@pytest.mark.slow
+def test_notebook_evaluates_the_zoo_model_with_models_zoo(tmp_path):
+    """Notebook 06 (smoke data) with models="zoo" loads the committed split-1 model instead of training."""
+    import json
+
+    import papermill as pm
+
+    from helpers.params import notebook_path
+
+    out = tmp_path / "06.ipynb"
+    pm.execute_notebook(str(notebook_path("06_reference_count")), str(out), kernel_name="python3",
+                        parameters={"models": "zoo", "out_dir": str(tmp_path / "06")}, progress_bar=False)
+    text = json.dumps(json.loads(out.read_text())["cells"])
+    assert "models/split1.pt" in text
+    assert (tmp_path / "06" / "metrics.json").exists()
+
+
+def test_long_preset_trains_the_zoo_recipes_runs():
+    """The long preset's notebook parameters give the zoo recipes' configs, so notebook 02/03 of
+    the long preset and `python -m helpers.zoo train` share (and resume) the same cache runs."""
+    from dataclasses import asdict
+
+    from helpers.augment import AugmentConfig
+    from helpers.model import ModelConfig
+    from helpers.runner import preset_parameters
+    from helpers.study import DataConfig, _train_key
+    from helpers.train import TrainConfig
+    from helpers.variants import parse_scales
+
+    P = preset_parameters("long", "02_train")
+    data = DataConfig(image_size=P["image_size"], render_size=P["render_size"], n_references=P["n_references"],
+                      n_train_queries=P["n_train_queries"], n_val_queries=P["n_val_queries"],
+                      n_test_queries=P["n_test_queries"], query_style=P["query_style"],
+                      train_context=P["train_context"], seed=P["seed"])
+    cfg = TrainConfig(epochs=P["epochs"], steps_per_epoch=P["steps_per_epoch"] or None, batch_size=P["batch_size"],
+                      lr=P["lr"], lr_milestones=tuple(P["lr_milestones"]), lr_schedule=P["lr_schedule"],
+                      warmup_steps=P["warmup_steps"], clean_steps=P["clean_steps"], random_ref=P["random_ref"],
+                      weighted_loss=P["weighted_loss"], seed=P["seed"], occlusion=P["train_occlusion"],
+                      augment=AugmentConfig(), val_every=P["val_every"],
+                      model=ModelConfig(image_size=P["image_size"], fusion=P["fusion"], scales=parse_scales(P["scales"]),
+                                        local_norm=P["local_norm"], norm_window=P["norm_window"]))
+    r = zoo.recipe("split1")
+    assert _train_key(cfg) == _train_key(r.train)
+    assert {k: v for k, v in asdict(data).items() if k not in ("workers", "cache_dir")} == \
+        {k: v for k, v in asdict(r.data).items() if k not in ("workers", "cache_dir")}
+    assert P["val_refs"] == r.val_refs and P["split"] == r.split

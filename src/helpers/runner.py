@@ -30,7 +30,7 @@ from .params import NOTEBOOK_DIR, ParameterError, check_mapping, declared_parame
 from .paths import REPO_ROOT
 
 PRESET_DIR = REPO_ROOT / "presets"
-PRESETS = ("smoke", "quick", "standard", "paper")
+PRESETS = ("smoke", "quick", "standard", "long", "paper")
 STATE_FILE = "runner_state.json"
 HEARTBEAT_S = 30.0  # how often a running notebook's elapsed time is saved (lost on a kill: at most this much)
 
