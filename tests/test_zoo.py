@@ -63,18 +63,22 @@ def test_recipe_trains_resumes_from_committed_checkpoint_publishes_and_refuses_d
     _, run1, _, _ = zoo.train_recipe(r1, zoo_dir=zdir)
     zoo.snapshot(r1, zoo_dir=zdir)
     assert (zdir / "checkpoints" / "tiny.last.pt").exists()
-    # Another machine (empty cache), longer budget: resumes from the committed checkpoint.
+    # Another machine (empty cache, other precision), longer budget: resumes from the committed checkpoint.
+    from dataclasses import replace
+
     r2 = _recipes(tmp_path, 2, str(tmp_path / "cacheB"))["tiny"]
+    r2 = replace(r2, train=replace(r2.train, precision="bf16"))
     _, run2, info, data = zoo.train_recipe(r2, zoo_dir=zdir)
     hist = info["history"]["history"]
-    assert [h["epoch"] for h in hist] == [1, 2]
+    assert [h["epoch"] for h in hist] == [1, 2] and [h["precision"] for h in hist] == ["fp32", "bf16"]
     first = torch.load(run1 / "last.pt", weights_only=True)["history"][0]
     assert hist[0]["train_loss"] == first["train_loss"]  # epoch 1 came from the checkpoint, not retrained
 
     wfile = zoo.publish(r2, run2, data, zoo_dir=zdir)
     e = zoo.entry("tiny", zdir)
-    assert e["steps"] == 4 and e["dtype"] == "float16" and e["precision"] == "fp32"
+    assert e["steps"] == 4 and e["dtype"] == "float16" and e["precision"] == "bf16+fp32"
     assert e["git"]["commit"] and e["device"]["resolved"] == "cpu"
+    assert [sess["from_step"] for sess in e["sessions"]] == [0, 2]  # cacheA's session, then cacheB's
     for k in ("class_acc", "rot_acc"):  # float16 weights: validation as recorded in training
         assert abs(e["val"][k] - e["val_recorded"][k]) <= 0.5 + 1e-9
     model, _ = zoo.load("tiny", device="cpu", zoo_dir=zdir)
@@ -83,8 +87,6 @@ def test_recipe_trains_resumes_from_committed_checkpoint_publishes_and_refuses_d
     assert zoo.verify(zdir) == []
 
     # Notebooks with models="zoo": the same split, architecture and seed find it, another seed does not.
-    from dataclasses import replace
-
     m2, where, info2 = zoo.model_for(1, replace(r2.train, epochs=7, lr=0.5), data, 6, "zoo", zoo_dir=zdir)
     assert where == wfile and info2["zoo"] == "tiny" and info2["history"]["history"]
     with pytest.raises(ValueError, match="no zoo model for split 1"):

@@ -47,7 +47,9 @@ LR_SCHEDULES = ("step", "cosine")
 
 # Fields that may change between an interrupted run and its resumption
 # without changing the trajectory of the weights.
-_RESUMABLE_CHANGES = {"epochs", "device", "num_threads", "val_every", "progress", "val_batch_size"}
+# precision: a run resumed on a machine without native bf16 goes on in float32 (each history entry
+# records the precision its epoch used).
+_RESUMABLE_CHANGES = {"epochs", "device", "num_threads", "val_every", "progress", "val_batch_size", "precision"}
 
 
 @dataclass
@@ -421,7 +423,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
                 val.pop("per_object")
             history.append({"epoch": epoch + 1, "global_step": global_step, "lr": float(lr),
                             "train_loss": float(np.mean(losses)), "seconds": float(seconds),
-                            "images_per_s": float(speed), "val": val})
+                            "images_per_s": float(speed), "precision": cfg.precision, "val": val})
 
             metric = None if val is None else selection_metric(val, cfg.select_on)
             improved = (metric is not None and metric >= best_metric) or not do_val

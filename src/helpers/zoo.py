@@ -12,7 +12,10 @@ in ``models/zoo.yaml``. :func:`load` checks the sha256 before it loads.
 
 from __future__ import annotations
 
+import io
+import json
 import shutil
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -118,21 +121,35 @@ def train_recipe(r: Recipe, zoo_dir: Path = ZOO_DIR) -> tuple[OrientationNet, Pa
     if not (run / "last.pt").exists() and committed.exists():  # resume from the committed checkpoint
         run.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(committed, run / "last.pt")
-    prov = run / "provenance.json"
-    if not prov.exists():
-        run.mkdir(parents=True, exist_ok=True)
+        if committed.with_suffix(".provenance.json").exists():
+            shutil.copyfile(committed.with_suffix(".provenance.json"), run / "provenance.json")
+    if not (run / "done.json").exists():
+        # One provenance record per training session (a resumed run may continue on another machine).
         from .fileio import atomic_write_json
 
-        atomic_write_json(prov, {"git": git_revision(), "recipe": r.name, "device": _machine(r.train.device)})
+        run.mkdir(parents=True, exist_ok=True)
+        prov = run / "provenance.json"
+        sessions = _sessions(read_json(prov)) if prov.exists() else []
+        step = torch.load(run / "last.pt", map_location="cpu", weights_only=True)["global_step"] \
+            if (run / "last.pt").exists() else 0
+        sessions.append({"git": git_revision(), "device": _machine(r.train.device), "from_step": int(step),
+                         "precision": r.train.resolved().precision,
+                         "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+        atomic_write_json(prov, {"recipe": r.name, "sessions": sessions})
     model, run, info = train_or_load(r.split, r.train, data, val_refs_per_object=r.val_refs)
     return model, run, info, data
+
+
+def _sessions(prov: dict) -> list[dict]:
+    """Training sessions of a provenance record (the first format held one session's git only)."""
+    if "sessions" in prov:
+        return list(prov["sessions"])
+    return [{"git": prov.get("git"), "device": prov.get("device"), "from_step": 0}]
 
 
 # ----------------------------------------------------------------------------- publishing
 
 def _torch_bytes(obj: Any) -> bytes:
-    import io
-
     buf = io.BytesIO()
     torch.save(obj, buf)
     return buf.getvalue()
@@ -183,7 +200,11 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
     run = Path(run)
     best = torch.load(run / "best.pt", map_location="cpu", weights_only=True)
     last = torch.load(run / "last.pt", map_location="cpu", weights_only=True)
-    done, prov = read_json(run / "done.json"), read_json(run / "provenance.json")
+    done = read_json(run / "done.json")
+    sessions = _sessions(read_json(run / "provenance.json"))
+    for sess in sessions:  # runs started before provenance recorded the machine: the publishing one
+        if not sess.get("device"):
+            sess["device"] = {**_machine("cpu"), "recorded_at": "publish"}
     cfg = best["config"]
     out = {"model": _half(best["model"]), "model_config": best["model_config"], "config": cfg,
            "epoch": best["epoch"], "val": best["val"], "recipe": r.name}
@@ -195,11 +216,11 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
     val = validate(model, {n: _val_refs(data.refs[n], r.val_refs) for n in seen},
                    {n: data.val_q[n] for n in seen}, "cpu")
     q, refs, qnames = _check_views(r, data)
-    buf = __import__("io").BytesIO()
+    buf = io.BytesIO()
     np.savez_compressed(buf, queries=q, refs=refs, scores=check_scores(model, q, refs), query_objects=np.array(qnames))
     atomic_write_bytes(zoo_dir / f"{r.name}.check.npz", buf.getvalue())
     hist = read_json(run / "history.json")
-    atomic_write_text(zoo_dir / f"{r.name}.history.json", __import__("json").dumps(hist, indent=1))
+    atomic_write_text(zoo_dir / f"{r.name}.history.json", json.dumps(hist, indent=1))
     steps_per_epoch = last["global_step"] // max(1, last["epoch"])
     data_cfg = {k: v for k, v in asdict(r.data).items() if k not in ("cache_dir", "workers")}
     entry = {
@@ -208,10 +229,11 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
         "split": r.split, "seen_objects": seen, "data": data_cfg, "val_refs_per_object": r.val_refs,
         "train": {k: v for k, v in cfg.items() if k not in ("device", "progress", "num_threads")},
         "steps": int(last["global_step"]), "best_epoch": int(best["epoch"]),
-        "best_step": int(best["epoch"]) * steps_per_epoch, "seed": int(cfg["seed"]), "precision": cfg["precision"],
-        "git": prov.get("git"),
-        # Runs started before provenance recorded the machine: the publishing machine (same session).
-        "device": prov.get("device") or {**_machine("cpu"), "recorded_at": "publish"}, "packages": package_versions(("torch", "numpy")),
+        "best_step": int(best["epoch"]) * steps_per_epoch, "seed": int(cfg["seed"]),
+        # every precision the epochs used (a run resumed on a CPU without native bf16 goes on in fp32)
+        "precision": "+".join(sorted({h.get("precision", cfg["precision"]) for h in hist.get("history", [])}))
+        or cfg["precision"],
+        "git": sessions[0]["git"], "device": sessions[0]["device"], "sessions": sessions, "packages": package_versions(("torch", "numpy")),
         "train_images_per_s": float(done.get("train_images_per_s", float("nan"))),
         "train_seconds": float(sum(h.get("seconds", 0.0) for h in hist.get("history", []))),
         "val_recorded": {k: float(v) for k, v in (best["val"] or {}).items() if k != "per_object"},
@@ -245,6 +267,8 @@ def snapshot(r: Recipe, zoo_dir: Path = ZOO_DIR) -> Path:
     dst = _checkpoint_path(r.name, zoo_dir)
     dst.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(dst, src.read_bytes())
+    if (src.parent / "provenance.json").exists():  # the sessions so far travel with the checkpoint
+        atomic_write_bytes(dst.with_suffix(".provenance.json"), (src.parent / "provenance.json").read_bytes())
     return dst
 
 
