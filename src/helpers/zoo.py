@@ -195,7 +195,7 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
     the published weights (float32 on CPU) beside those the training recorded."""
     from .runinfo import package_versions
     from .study import _val_refs
-    from .validation import validate
+    from .validation import plot_history, validate
 
     run = Path(run)
     best = torch.load(run / "best.pt", map_location="cpu", weights_only=True)
@@ -221,11 +221,12 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
     atomic_write_bytes(zoo_dir / f"{r.name}.check.npz", buf.getvalue())
     hist = read_json(run / "history.json")
     atomic_write_text(zoo_dir / f"{r.name}.history.json", json.dumps(hist, indent=1))
+    plot_history(hist.get("history", []), zoo_dir / f"{r.name}.curve.png")
     steps_per_epoch = last["global_step"] // max(1, last["epoch"])
     data_cfg = {k: v for k, v in asdict(r.data).items() if k not in ("cache_dir", "workers")}
     entry = {
         "file": wfile.name, "sha256": sha256_file(wfile), "bytes": wfile.stat().st_size, "dtype": "float16",
-        "history": f"{r.name}.history.json", "check": f"{r.name}.check.npz",
+        "history": f"{r.name}.history.json", "curve": f"{r.name}.curve.png", "check": f"{r.name}.check.npz",
         "split": r.split, "seen_objects": seen, "data": data_cfg, "val_refs_per_object": r.val_refs,
         "train": {k: v for k, v in cfg.items() if k not in ("device", "progress", "num_threads")},
         "steps": int(last["global_step"]), "best_epoch": int(best["epoch"]),
