@@ -253,7 +253,15 @@ def _write_entry(name: str, entry: dict, zoo_dir: Path) -> None:
         zoo = entries(zoo_dir) if path.exists() else {}
         zoo[name] = entry
         head = "# The model zoo: written by `python -m helpers.zoo train NAME --publish` (helpers.zoo.publish).\n"
-        atomic_write_text(path, head + yaml.safe_dump({"models": dict(sorted(zoo.items()))}, sort_keys=False))
+        atomic_write_text(path, head + yaml.dump({"models": dict(sorted(zoo.items()))}, Dumper=_PlainDumper,
+                                                 sort_keys=False))
+
+
+class _PlainDumper(yaml.SafeDumper):
+    """Writes repeated values out in full (no &id001 anchors: zoo.yaml is read by people too)."""
+
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
 
 
 def snapshot(r: Recipe, zoo_dir: Path = ZOO_DIR) -> Path:
