@@ -170,8 +170,6 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
     missing = [n for n in seen if n not in data.train_q]
     if missing:
         raise ValueError(f"train_or_load: no training queries rendered for {missing}; prepare_data with them")
-    if hasattr(train_cfg, "resolved"):  # "auto" precision keys the run by what it means on this machine
-        train_cfg = train_cfg.resolved()
     curriculum = bool(getattr(train_cfg, "clean_steps", 0))
     run = run_folder(split, train_cfg, data, val_refs_per_object)
     done = run / "done.json"
@@ -202,7 +200,7 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
 def run_folder(split: int, train_cfg: Any, data: StudyData, val_refs_per_object: int = 256) -> Path:
     """``<cache>/runs/split<k>-<hash>``: the run folder of :func:`train_or_load`, keyed by the
     training config (precision resolved), the split and the render keys of every set it uses."""
-    if hasattr(train_cfg, "resolved"):
+    if hasattr(train_cfg, "resolved"):  # "auto" precision keys the run by what it means on this machine
         train_cfg = train_cfg.resolved()
     seen = data.manifest.seen_objects(split)
     curriculum = bool(getattr(train_cfg, "clean_steps", 0))
