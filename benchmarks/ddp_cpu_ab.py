@@ -60,7 +60,8 @@ def _cfg(args, threads: int):
 
     return TrainConfig(epochs=args.epochs, steps_per_epoch=args.steps, batch_size=16, lr=1e-3, seed=3,
                        device="cpu", progress=False, num_threads=threads,
-                       model=ModelConfig(image_size=SIZE, dropout=0.0))
+                       model=ModelConfig(image_size=SIZE, dropout=0.0),
+                       precision="fp32")  # the A/B compares losses of the same math: no bf16 rounding
 
 
 def _worker(rank: int, world: int, port: int, out: str, threads: int, args) -> None:
