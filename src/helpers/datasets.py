@@ -8,7 +8,9 @@ rotations shared by every object) or real-like queries. It lives in::
         images.npy            (N, S, S, 3) uint8, memory-mappable
         masks.npy             (N, S, S) bool
         rotations.npy         (N, 3, 3) float32 R_m2c
-        meta.json             written last: its presence means "complete"
+        meta.json             written last: its presence means "complete"; holds the
+                              sha256 of the three .npy files, checked on load
+    <cache>/renders/<object>/.<kind>-<key>.lock   held by the one process building it
 
 ``key`` hashes everything that determines the pixels: object mesh and
 texture checksums, render and style parameters, N, seeds, code version. An
@@ -22,6 +24,10 @@ import concurrent.futures as cf
 import multiprocessing as mp
 import os
 import shutil
+import tempfile
+import time
+import warnings
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +35,9 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from .fileio import atomic_save_npy, atomic_write_json, output_errors, preallocate, read_json, stable_hash
+from .fileio import (DamagedEntry, atomic_save_npy, atomic_write_json, check_sha256, output_errors, preallocate,
+                     read_json, sha256_file, stable_hash, touch)
+from .locks import entry_lock, made_by, try_entry_lock
 from .manifest import Manifest, load_manifest, verify_file
 from .paths import cache_dir
 from .render import QueryStyle, RenderConfig, config_dict, output_side
@@ -187,8 +195,9 @@ def _load_complete(d: Path, spec: ViewSetSpec, manifest: Manifest, mmap: bool) -
     rots = np.load(d / "rotations.npy")
     masks = np.load(d / "masks.npy", mmap_mode=mode)
     if images.shape != (spec.n, spec.side(), spec.side(), 3):
-        raise ValueError(f"{d}/images.npy: expected shape {(spec.n, spec.side(), spec.side(), 3)}, "
-                         f"got {images.shape}; delete {d} to re-render")
+        raise DamagedEntry(f"{d}/images.npy: expected shape {(spec.n, spec.side(), spec.side(), 3)}, "
+                           f"got {images.shape}; delete {d} to re-render")
+    touch(d / "meta.json")  # its modification time is the set's last use (python -m helpers.cache list)
     entry = manifest.object(spec.object)
     sym = np.eye(3)[None]
     if entry.symmetries:
@@ -196,32 +205,119 @@ def _load_complete(d: Path, spec: ViewSetSpec, manifest: Manifest, mmap: bool) -
     return ObjectViews(spec.object, images, rots, masks, spec.kind, sym, meta)
 
 
+SET_FILES = ("images.npy", "masks.npy", "rotations.npy")
+
+
+def check_set(d: Path) -> None:
+    """Raise :class:`DamagedEntry` unless the finished set ``d`` matches the sha256 sums in its meta.json."""
+    meta_p = d / "meta.json"
+    try:
+        sums = read_json(meta_p)["sha256"]
+    except (ValueError, KeyError, TypeError):
+        raise DamagedEntry(f"{meta_p}: unreadable or without checksums; delete {d} to re-render") from None
+    for f in SET_FILES:
+        check_sha256(d / f, sums.get(f, ""), meta_p, f"delete {d} to re-render (or rerun: damaged sets are re-rendered)")
+
+
+def _intact(d: Path) -> bool:
+    """Whether ``d`` is a finished set whose files match their checksums (a damaged one is reported)."""
+    if not (d / "meta.json").exists():
+        return False
+    try:
+        check_set(d)
+    except DamagedEntry as e:
+        warnings.warn(f"{e}; re-rendering it", RuntimeWarning, stacklevel=3)
+        return False
+    return True
+
+
 def _consolidate(d: Path, spec: ViewSetSpec) -> None:
     S = spec.side()
-    tmp = d / ".images.npy.tmp"
-    with output_errors(tmp, spec.n * S * S * 3):
-        imgs = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(spec.n, S, S, 3))
-    preallocate(tmp, tmp.stat().st_size)  # reserve the sparse file's blocks: full disk = error, not SIGBUS
-    masks = np.zeros((spec.n, S, S), bool)
-    rots = np.zeros((spec.n, 3, 3), np.float32)
-    for c in range(_n_chunks(spec.n)):
-        with np.load(d / f"chunk_{c:05d}.npz") as z:
-            lo = c * CHUNK
-            hi = lo + len(z["images"])
-            imgs[lo:hi] = z["images"]
-            masks[lo:hi] = z["masks"]
-            rots[lo:hi] = z["rotations"]
-    imgs.flush()
-    del imgs
-    os.replace(tmp, d / "images.npy")
+    fd, name = tempfile.mkstemp(dir=d, prefix=".images.npy.", suffix=".tmp")  # unique: never shared
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        with output_errors(tmp, spec.n * S * S * 3):
+            imgs = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(spec.n, S, S, 3))
+        preallocate(tmp, tmp.stat().st_size)  # reserve the sparse file's blocks: full disk = error, not SIGBUS
+        masks = np.zeros((spec.n, S, S), bool)
+        rots = np.zeros((spec.n, 3, 3), np.float32)
+        for c in range(_n_chunks(spec.n)):
+            with np.load(d / f"chunk_{c:05d}.npz") as z:
+                lo = c * CHUNK
+                hi = lo + len(z["images"])
+                imgs[lo:hi] = z["images"]
+                masks[lo:hi] = z["masks"]
+                rots[lo:hi] = z["rotations"]
+        imgs.flush()
+        del imgs
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, d / "images.npy")
+    finally:
+        tmp.unlink(missing_ok=True)
     atomic_save_npy(d / "masks.npy", masks)
     atomic_save_npy(d / "rotations.npy", rots)
+
+
+def _mkdir(d: Path, root: Path) -> None:
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OSError(f"cannot create render cache folder {d} (cache root {root}): {e.strerror}") from None
+
+
+def _start(d: Path, spec: ViewSetSpec, root: Path) -> list[tuple[ViewSetSpec, Path, int]]:
+    """Prepare folder ``d`` for ``spec`` (clearing a damaged finished set); its chunks still to render."""
+    for f in ("meta.json", *SET_FILES):  # what is left of a damaged set; its chunks are gone
+        (d / f).unlink(missing_ok=True)
+    _mkdir(d, root)
+    atomic_write_json(d / "spec.json", {"object": spec.object, "kind": spec.kind, "n": spec.n, "seed": spec.seed,
+                                        **config_dict(spec.render, spec.style), "background_split": spec.background_split})
+    return [(spec, d, c) for c in range(_n_chunks(spec.n)) if not (d / f"chunk_{c:05d}.npz").exists()]
+
+
+def _render_chunks(todo: list[tuple[ViewSetSpec, Path, int]], workers: int, manifest: Manifest,
+                   progress: bool) -> None:
+    total = sum(min(CHUNK, s.n - c * CHUNK) for s, _, c in todo)
+    bar = tqdm(total=total, desc="rendering views", unit="img", disable=not progress)
+    if workers and workers > 0:
+        ctx = mp.get_context("spawn")
+        lp = max(1, (os.cpu_count() or 2) // workers)
+        with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init,
+                                    initargs=(str(manifest.path), lp)) as ex:
+            futs = [ex.submit(_render_chunk, s, str(d), c) for s, d, c in todo]
+            for f in cf.as_completed(futs):
+                bar.update(f.result())
+    else:
+        _W.setdefault("manifest", manifest)
+        for s, d, c in todo:
+            bar.update(_render_chunk(s, str(d), c))
+    bar.close()
+
+
+def _finish(d: Path, spec: ViewSetSpec, keep_chunks: bool) -> None:
+    """Consolidate the chunks of ``d`` and write meta.json (last: its presence means complete)."""
+    _consolidate(d, spec)
+    meta = {"object": spec.object, "kind": spec.kind, "n": spec.n, "seed": spec.seed, "key": d.name,
+            "render_version": RENDER_VERSION, **config_dict(spec.render, spec.style if spec.kind == "query" else None),
+            "background_split": spec.background_split if spec.kind == "query" else None,
+            "bytes": sum((d / f).stat().st_size for f in SET_FILES),
+            "sha256": {f: sha256_file(d / f) for f in SET_FILES}, "made_by": made_by(),
+            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    atomic_write_json(d / "meta.json", meta)
+    if not keep_chunks:
+        for f in d.glob("chunk_*.npz"):
+            f.unlink()
 
 
 def render_sets(specs: list[ViewSetSpec], cache: str | os.PathLike | None = None, workers: int = 2,
                 manifest: Manifest | None = None, mmap: bool = True, progress: bool = True,
                 keep_chunks: bool = False) -> list[ObjectViews]:
     """Render (or load from cache) every view set in ``specs``.
+
+    Sets still to build are locked first (one builder per set, in one global order so two
+    processes never wait for each other); a process that waited finds them finished and
+    loads them. A finished set whose files no longer match their sha256 is re-rendered.
 
     Args:
         specs: what to render.
@@ -236,60 +332,34 @@ def render_sets(specs: list[ViewSetSpec], cache: str | os.PathLike | None = None
     """
     manifest = manifest or load_manifest()
     root = cache_dir(cache)
-    todo: list[tuple[ViewSetSpec, Path, int]] = []
+    dirs = []
     for spec in specs:
         manifest.object(spec.object)  # clear error for unknown names before any work
-        d = set_dir(spec, manifest, root)
-        if (d / "meta.json").exists():
-            continue
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise OSError(f"cannot create render cache folder {d} (cache root {root}): {e.strerror}") from None
-        atomic_write_json(d / "spec.json", {"object": spec.object, "kind": spec.kind, "n": spec.n, "seed": spec.seed,
-                                            **config_dict(spec.render, spec.style), "background_split": spec.background_split})
-        for c in range(_n_chunks(spec.n)):
-            if not (d / f"chunk_{c:05d}.npz").exists():
-                todo.append((spec, d, c))
-    total = sum(min(CHUNK, s.n - c * CHUNK) for s, _, c in todo)
-    if todo:
-        bar = tqdm(total=total, desc="rendering views", unit="img", disable=not progress)
-        if workers and workers > 0:
-            ctx = mp.get_context("spawn")
-            lp = max(1, (os.cpu_count() or 2) // workers)
-            with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init,
-                                        initargs=(str(manifest.path), lp)) as ex:
-                futs = [ex.submit(_render_chunk, s, str(d), c) for s, d, c in todo]
-                for f in cf.as_completed(futs):
-                    bar.update(f.result())
-        else:
-            _W.setdefault("manifest", manifest)
-            for s, d, c in todo:
-                bar.update(_render_chunk(s, str(d), c))
-        bar.close()
-    out = []
-    for spec in specs:
-        d = set_dir(spec, manifest, root)
-        if not (d / "meta.json").exists():
-            _consolidate(d, spec)
-            meta = {"object": spec.object, "kind": spec.kind, "n": spec.n, "seed": spec.seed, "key": d.name,
-                    "render_version": RENDER_VERSION, **config_dict(spec.render, spec.style if spec.kind == "query" else None),
-                    "background_split": spec.background_split if spec.kind == "query" else None,
-                    "bytes": sum(f.stat().st_size for f in d.glob("*.npy"))}
-            atomic_write_json(d / "meta.json", meta)
-            if not keep_chunks:
-                for f in d.glob("chunk_*.npz"):
-                    f.unlink()
-        out.append(_load_complete(d, spec, manifest, mmap))
-    return out
+        dirs.append(set_dir(spec, manifest, root))
+    pending = {d: spec for d, spec in zip(dirs, specs) if not _intact(d)}
+    if pending:
+        with ExitStack() as stack:
+            for d in sorted(pending):
+                _mkdir(d.parent, root)
+                stack.enter_context(entry_lock(d, f"render set {d.parent.name}/{d.name}"))
+            pending = {d: s for d, s in pending.items() if not _intact(d)}  # others may have built them meanwhile
+            todo = [t for d, s in pending.items() for t in _start(d, s, root)]
+            if todo:
+                _render_chunks(todo, workers, manifest, progress)
+            for d, s in pending.items():
+                _finish(d, s, keep_chunks)
+    return [_load_complete(d, spec, manifest, mmap) for d, spec in zip(dirs, specs)]
 
 
 def clear_incomplete(cache: str | os.PathLike | None = None) -> int:
-    """Delete view-set folders without meta.json (returns how many)."""
+    """Delete view-set folders without meta.json that no live process is building (returns how many)."""
     root = cache_dir(cache) / "renders"
     n = 0
     for d in root.glob("*/*-*"):
-        if d.is_dir() and not (d / "meta.json").exists():
-            shutil.rmtree(d)
-            n += 1
+        if not d.is_dir() or (d / "meta.json").exists():
+            continue
+        with try_entry_lock(d, f"render set {d.parent.name}/{d.name}") as free:
+            if free and not (d / "meta.json").exists():
+                shutil.rmtree(d)
+                n += 1
     return n

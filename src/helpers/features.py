@@ -23,6 +23,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .fileio import atomic_write_json, preallocate, sha256_file
+from .fileio import DamagedEntry, atomic_write_json, preallocate, sha256_file, touch
+from .locks import entry_lock
 from .views import ObjectViews
 
 SIDECAR_VERSION = 1
@@ -133,6 +135,13 @@ def _safe_key(key: str, what: str) -> str:
     return key
 
 
+def _check_keys(side: Path, meta: dict | None, keys: dict) -> None:
+    if meta is not None and meta["keys"] != keys:
+        diff = sorted(k for k in keys if meta["keys"].get(k) != keys[k])
+        raise ValueError(f"{side}: cached features were built from different views (mismatch in {diff}); "
+                         "use another refset_key or delete the cache entry")
+
+
 class FeatureCache:
     """Content-keyed on-disk cache of reference feature maps (float16 memmaps).
 
@@ -156,13 +165,14 @@ class FeatureCache:
             return None
         meta = self._read_sidecar(side)
         if meta is None:
-            raise ValueError(f"{final}: feature file exists but its sidecar {side} is missing")
+            raise DamagedEntry(f"{final}: feature file exists but its sidecar {side} is missing; delete it to rebuild")
         shape = tuple(meta["shape"])
         expected = int(np.prod(shape)) * 2
         if final.stat().st_size != expected:
-            raise ValueError(f"{final}: size {final.stat().st_size} bytes, expected {expected} "
-                             f"for float16 {shape} (per {side}); delete both to rebuild")
+            raise DamagedEntry(f"{final}: size {final.stat().st_size} bytes, expected {expected} "
+                               f"for float16 {shape} (per {side}); delete both to rebuild")
         self._verify(final, side, meta, shape)
+        touch(side)  # the sidecar's modification time is the entry's last use
         return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
 
     def _verify(self, final: Path, side: Path, meta: dict, shape: tuple) -> None:
@@ -179,12 +189,12 @@ class FeatureCache:
             mm = np.memmap(final, dtype=np.float16, mode="r", shape=shape)
             for s in range(0, shape[0], 256):
                 if not np.isfinite(mm[s:s + 256]).all():
-                    raise ValueError(f"{final}: cached features hold NaN/inf (rows {s}..{s + 255}); "
+                    raise DamagedEntry(f"{final}: cached features hold NaN/inf (rows {s}..{s + 255}); "
                                      f"delete it and {side} to rebuild")
             del mm
             self._write_sidecar(side, shape, meta["done"], True, meta["keys"], digest)
         elif meta["sha256"] != digest:
-            raise ValueError(f"{final}: content does not match the checksum recorded in {side} when it was "
+            raise DamagedEntry(f"{final}: content does not match the checksum recorded in {side} when it was "
                              "written (changed or corrupted on disk); delete both to rebuild")
         _VERIFIED.add(stamp)
 
@@ -195,10 +205,10 @@ class FeatureCache:
         try:
             meta = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise ValueError(f"{path}: malformed feature-cache sidecar ({e}); delete it to rebuild") from None
+            raise DamagedEntry(f"{path}: malformed feature-cache sidecar ({e}); delete it to rebuild") from None
         for k in ("shape", "dtype", "done", "keys"):
             if k not in meta:
-                raise ValueError(f"{path}: feature-cache sidecar lacks key {k!r}; delete it to rebuild")
+                raise DamagedEntry(f"{path}: feature-cache sidecar lacks key {k!r}; delete it to rebuild")
         return meta
 
     def get_or_build(self, model: Any, model_key: str, views: ObjectViews, refset_key: str,
@@ -224,16 +234,41 @@ class FeatureCache:
             raise ValueError(f"get_or_build: views {views.name!r} is empty")
         keys = {"model_key": model_key, "refset_key": refset_key, "name": views.name, "n_views": n,
                 "image_shape": list(images.shape[1:]), "probe": _probe(images)}
-        final, side, tmp = self.paths(model_key, refset_key)
-        meta = self._read_sidecar(side)
-        if meta is not None and meta["keys"] != keys:
-            diff = sorted(k for k in keys if meta["keys"].get(k) != keys[k])
-            raise ValueError(f"{side}: cached features were built from different views (mismatch in {diff}); "
-                             "use another refset_key or delete the cache entry")
-        done = self.load(model_key, refset_key)
+        final, side, _ = self.paths(model_key, refset_key)
+        done = self._finished(model_key, refset_key, keys)
         if done is not None:
             return done
+        # One builder per file; a process that waited finds it finished and loads it.
+        with entry_lock(final, f"features of {views.name} ({model_key}/{refset_key})"):
+            done = self._finished(model_key, refset_key, keys, rebuild_damaged=True)
+            if done is not None:
+                return done
+            return self._build(model, model_key, refset_key, images, keys, views.name, batch, device, progress)
 
+    def _finished(self, model_key: str, refset_key: str, keys: dict, rebuild_damaged: bool = False
+                  ) -> np.memmap | None:
+        """The finished, intact file, or None. A damaged one is reported; with ``rebuild_damaged``
+        (under the entry's lock) it is deleted so that it is rebuilt."""
+        final, side, _ = self.paths(model_key, refset_key)
+        meta = self._read_sidecar(side) if side.is_file() and final.is_file() else None
+        _check_keys(side, meta, keys)
+        try:
+            return self.load(model_key, refset_key)
+        except DamagedEntry as e:
+            if not rebuild_damaged:
+                return None
+            warnings.warn(f"{e}; rebuilding it", RuntimeWarning, stacklevel=3)
+            final.unlink(missing_ok=True)
+            side.unlink(missing_ok=True)
+            return None
+
+    def _build(self, model: Any, model_key: str, refset_key: str, images: np.ndarray, keys: dict, name: str,
+               batch: int, device: str | torch.device, progress: bool) -> np.memmap:
+        """Encode ``images`` into the partial file (resuming where its sidecar says), then rename it into place."""
+        final, side, tmp = self.paths(model_key, refset_key)
+        n = len(images)
+        meta = self._read_sidecar(side) if side.is_file() else None
+        _check_keys(side, meta, keys)
         # Resume only if the temporary file and its recorded progress agree.
         start, mm = 0, None
         if meta is not None and tmp.is_file() and not meta.get("complete", False):
@@ -241,7 +276,7 @@ class FeatureCache:
             if tmp.stat().st_size == int(np.prod(shape)) * 2 and 0 < meta["done"] <= n:
                 mm = np.memmap(tmp, dtype=np.float16, mode="r+", shape=shape)
                 start = int(meta["done"])
-        bar = tqdm(total=n, initial=start, desc=f"features {views.name}", unit="view", disable=not progress)
+        bar = tqdm(total=n, initial=start, desc=f"features {name}", unit="view", disable=not progress)
         try:
             pos = start
             for feats in encode_views(model, images, batch, device, start=start):
@@ -257,7 +292,7 @@ class FeatureCache:
                 half = feats.numpy().astype(np.float16)
                 if not np.isfinite(half).all():
                     raise ValueError(f"get_or_build: the model produced non-finite features for views "
-                                     f"{pos}..{pos + b - 1} of {views.name!r} (NaN/inf, or beyond float16); "
+                                     f"{pos}..{pos + b - 1} of {name!r} (NaN/inf, or beyond float16); "
                                      "not cached")
                 mm[pos:pos + b] = half
                 pos += b
@@ -268,12 +303,13 @@ class FeatureCache:
         finally:
             bar.close()
         if pos != n:
-            raise RuntimeError(f"get_or_build: encoded {pos} of {n} views of {views.name!r}")
+            raise RuntimeError(f"get_or_build: encoded {pos} of {n} views of {name!r}")
         shape = mm.shape
         del mm  # close the writable map before the rename
         digest = sha256_file(tmp)
-        os.replace(tmp, final)
+        # Checksum first, then the rename: a finished file always has its sha256 beside it.
         self._write_sidecar(side, shape, n, True, keys, digest)
+        os.replace(tmp, final)
         out = self.load(model_key, refset_key)
         assert out is not None
         return out

@@ -31,6 +31,35 @@ def sha256_file(path: str | os.PathLike, bufsize: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+class DamagedEntry(ValueError):
+    """A cached or committed file does not match the checksum recorded when it was written."""
+
+
+# Files whose sha256 matched in this process: (path, size, mtime_ns) -> digest.
+_VERIFIED: dict[tuple[str, int, int], str] = {}
+
+
+def check_sha256(path: str | os.PathLike, expected: str, recorded_in: str | os.PathLike, recover: str) -> None:
+    """Raise :class:`DamagedEntry` naming ``path`` unless its sha256 is ``expected``.
+
+    A file is hashed once per process and version (path, size, mtime), so repeated loads
+    cost nothing. ``recover`` says what the user can do ("delete <folder> to re-render").
+    """
+    path = Path(path)
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise DamagedEntry(f"{path}: missing (recorded in {recorded_in}); {recover}") from None
+    stamp = (str(path), st.st_size, st.st_mtime_ns)
+    if _VERIFIED.get(stamp) == expected:
+        return
+    digest = sha256_file(path)
+    if digest != expected:
+        raise DamagedEntry(f"{path}: content does not match the sha256 recorded in {recorded_in} when it was "
+                           f"written (changed, truncated or corrupted on disk); {recover}")
+    _VERIFIED[stamp] = digest
+
+
 def stable_hash(obj: Any, n: int = 16) -> str:
     """Short hex sha256 of a JSON-serialisable object (keys sorted)."""
     blob = json.dumps(obj, sort_keys=True, default=_json_default).encode()
@@ -163,6 +192,14 @@ def atomic_save_npy(path: str | os.PathLike, array: np.ndarray) -> Path:
     buf = io.BytesIO()
     np.save(buf, array)
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def touch(path: str | os.PathLike) -> None:
+    """Set ``path``'s modification time to now (a cache entry's "last use"); a read-only cache is no error."""
+    try:
+        os.utime(path)
+    except OSError:
+        pass
 
 
 def read_json(path: str | os.PathLike) -> Any:

@@ -18,12 +18,15 @@ import torch
 from .datasets import ViewSetSpec, render_sets
 from .device import resolve_device
 from .features import FeatureCache, encode_batch, encode_views, model_fingerprint
-from .fileio import atomic_write_json, read_json, stable_hash
+from .distributed import distributed_world
+from .fileio import atomic_write_json, check_sha256, read_json, sha256_file, stable_hash, touch
+from .locks import entry_lock, made_by
 from .manifest import Manifest, load_manifest
 from .metrics import Record, per_query_table, summarise_queries
 from .paths import cache_dir
 from .render import RenderConfig, query_style
 from .retrieval import ReferenceBank, model_scorer, search_all
+from .train import load_model, train
 from .views import ObjectViews
 
 
@@ -159,42 +162,82 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
     The run folder ``<cache>/runs/<hash>`` is keyed by the model and training
     configs, the split and the render keys of every set used, so a finished
     run is reused by any notebook that asks for the same thing, and an
-    interrupted one resumes from its last checkpoint.
+    interrupted one resumes from its last checkpoint. One process trains a run at
+    a time (its lock); another that asks for it waits and then loads it. A finished
+    run's ``done.json`` records the sha256 of ``best.pt`` and ``last.pt``, checked here.
 
     Returns:
         (model in eval mode on its device, run folder, history dict).
-    """
-    from .train import load_model, train
 
+    Raises:
+        DamagedEntry: a checkpoint of the finished run does not match its checksum
+            (the message names the file and how to recover).
+    """
     seen = data.manifest.seen_objects(split)
     missing = [n for n in seen if n not in data.train_q]
     if missing:
         raise ValueError(f"train_or_load: no training queries rendered for {missing}; prepare_data with them")
-    curriculum = bool(getattr(train_cfg, "clean_steps", 0))
     run = run_folder(split, train_cfg, data, val_refs_per_object)
-    done = run / "done.json"
-    if not done.exists():
-        from .distributed import distributed_world
-
-        t0 = time.perf_counter()
-        res = train(train_cfg, {n: data.refs[n] for n in seen}, {n: data.train_q[n] for n in seen},
-                    {n: _val_refs(data.refs[n], val_refs_per_object) for n in seen},
-                    {n: data.val_q[n] for n in seen}, run, resume=True,
-                    clean_queries={n: data.clean_q[n] for n in seen} if curriculum else None)
-        rank, world = distributed_world()
-        if rank == 0:  # in a data-parallel run, process 0 writes; the others wait for it
-            atomic_write_json(done, {"split": split, "seen": seen, "seconds_this_session": time.perf_counter() - t0,
-                                     "best": str(res.best_path), "train_images_per_s": res.train_images_per_s,
-                                     "processes": world})
-        if world > 1:
-            import torch.distributed as dist
-
-            dist.barrier()
-    info = read_json(done)
+    rank, world = distributed_world()
+    if not _finished_run(run):
+        if rank == 0:  # in a data-parallel run, process 0 holds the lock and writes; the others follow it
+            with run_lock(run):
+                if not _finished_run(run):
+                    _train_run(split, train_cfg, data, val_refs_per_object, run, seen, world)
+        else:
+            _train_run(split, train_cfg, data, val_refs_per_object, run, seen, world)
+    info = check_run(run)
+    touch(run / "done.json")  # its modification time is the run's last use
     model, _ = load_model(run / "best.pt", device=getattr(train_cfg, "device", "auto"))
     model.eval()
     history = read_json(run / "history.json") if (run / "history.json").exists() else {}
     return model, run, {"history": history, **info}
+
+
+def run_lock(run: Path):
+    """The lock of training run folder ``run`` (one process trains it at a time)."""
+    return entry_lock(run, f"training run {run.name}")
+
+
+def _finished_run(run: Path) -> bool:
+    return (run / "done.json").exists()
+
+
+def check_run(run: Path) -> dict:
+    """done.json of finished run ``run`` after checking best.pt and last.pt against its sha256
+    sums (a run finished before checksums were recorded gets them now)."""
+    done = run / "done.json"
+    info = read_json(done)
+    if "sha256" not in info:
+        with run_lock(run):
+            info = read_json(done)
+            info.setdefault("sha256", {f: sha256_file(run / f) for f in ("best.pt", "last.pt")})
+            atomic_write_json(done, info)
+    for f in ("best.pt", "last.pt"):
+        check_sha256(run / f, info["sha256"].get(f, ""), done,
+                     f"remove the run with `python -m helpers.cache prune` (or delete {run}); the next run retrains it")
+    return info
+
+
+def _train_run(split: int, train_cfg: Any, data: StudyData, val_refs_per_object: int, run: Path,
+               seen: list[str], world: int) -> None:
+    curriculum = bool(getattr(train_cfg, "clean_steps", 0))
+    t0 = time.perf_counter()
+    res = train(train_cfg, {n: data.refs[n] for n in seen}, {n: data.train_q[n] for n in seen},
+                {n: _val_refs(data.refs[n], val_refs_per_object) for n in seen},
+                {n: data.val_q[n] for n in seen}, run, resume=True,
+                clean_queries={n: data.clean_q[n] for n in seen} if curriculum else None)
+    rank, _ = distributed_world()
+    if rank == 0:
+        atomic_write_json(run / "done.json", {
+            "split": split, "seen": seen, "seconds_this_session": time.perf_counter() - t0,
+            "best": "best.pt", "train_images_per_s": res.train_images_per_s, "processes": world,
+            "sha256": {f: sha256_file(run / f) for f in ("best.pt", "last.pt")}, "made_by": made_by(),
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+    if world > 1:
+        import torch.distributed as dist
+
+        dist.barrier()
 
 
 def run_folder(split: int, train_cfg: Any, data: StudyData, val_refs_per_object: int = 256) -> Path:

@@ -33,7 +33,7 @@ from .augment import AugmentConfig
 from .batches import _Batcher, _order_stream  # noqa: F401  (re-exported: tests and benchmarks use them)
 from .device import resolve_device
 from .distributed import barrier, distributed_world, sharded_encoder  # noqa: F401  (re-exported)
-from .fileio import atomic_write_bytes, atomic_write_text
+from .fileio import DamagedEntry, atomic_write_bytes, atomic_write_text
 from .losses import pair_weights, weighted_info_nce
 from .model import ModelConfig, OrientationNet, images_to_tensor
 from .precision import PRECISIONS, resolve_precision
@@ -372,7 +372,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
         last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
 
         if resume and last_path.exists():
-            ck = torch.load(last_path, map_location=device, weights_only=True)
+            ck = read_checkpoint(last_path, device)
             old, new = ck["config"], cfg.to_dict()
             diff = sorted(k for k in new if k not in _RESUMABLE_CHANGES and old.get(k) != new[k])
             if diff:
@@ -453,10 +453,22 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
         torch.set_num_threads(old_threads)
 
 
+def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict:
+    """torch.load of a checkpoint; an unreadable file is a :class:`DamagedEntry` that names it."""
+    path = Path(path)
+    try:
+        return torch.load(path, map_location=device, weights_only=True)
+    except FileNotFoundError:
+        raise
+    except (RuntimeError, EOFError, OSError, ValueError) as e:  # torch's zip reader, a truncated pickle
+        raise DamagedEntry(f"{path}: unreadable checkpoint ({str(e).splitlines()[0][:200]}); delete the run "
+                           f"folder {path.parent} (or `python -m helpers.cache prune`) and rerun to retrain") from None
+
+
 def load_model(path: str | Path, device: str | torch.device = "auto") -> tuple[OrientationNet, dict]:
     """Rebuild the network from a checkpoint's embedded config; returns (model in eval mode, checkpoint)."""
     device = resolve_device(device)
-    ck = torch.load(Path(path), map_location=device, weights_only=True)
+    ck = read_checkpoint(path, device)
     model = OrientationNet(ModelConfig.from_dict(ck["model_config"]))
     model.load_state_dict(ck["model"])
     return model.to(device).eval(), ck

@@ -24,11 +24,11 @@ import numpy as np
 import torch
 import yaml
 
-from .fileio import atomic_write_bytes, atomic_write_text, read_json, sha256_file
+from .fileio import atomic_write_bytes, atomic_write_json, atomic_write_text, read_json, sha256_file
 from .model import ModelConfig, OrientationNet
 from .paths import REPO_ROOT
-from .study import DataConfig, prepare_data, run_folder, train_or_load
-from .train import TrainConfig
+from .study import DataConfig, check_run, prepare_data, run_folder, run_lock, train_or_load
+from .train import TrainConfig, read_checkpoint
 
 ZOO_DIR = REPO_ROOT / "models"
 RECIPES = REPO_ROOT / "presets" / "long" / "zoo.yaml"
@@ -113,31 +113,35 @@ def train_recipe(r: Recipe, zoo_dir: Path = ZOO_DIR) -> tuple[OrientationNet, Pa
     """Train (or resume, or load the finished run of) recipe ``r``; returns
     (model, run folder, info of :func:`train_or_load`, StudyData)."""
     from .manifest import load_manifest
-    from .runinfo import git_revision
 
     data = prepare_data(r.data, objects=load_manifest().seen_objects(r.split), occluded=False, test=False)
     run = run_folder(r.split, r.train, data, r.val_refs)
     committed = _checkpoint_path(r.name, zoo_dir)
-    if not (run / "last.pt").exists() and committed.exists():  # resume from the committed checkpoint
-        run.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(committed, run / "last.pt")
-        if committed.with_suffix(".provenance.json").exists():
-            shutil.copyfile(committed.with_suffix(".provenance.json"), run / "provenance.json")
-    if not (run / "done.json").exists():
-        # One provenance record per training session (a resumed run may continue on another machine).
-        from .fileio import atomic_write_json
-
-        run.mkdir(parents=True, exist_ok=True)
-        prov = run / "provenance.json"
-        sessions = _sessions(read_json(prov)) if prov.exists() else []
-        step = torch.load(run / "last.pt", map_location="cpu", weights_only=True)["global_step"] \
-            if (run / "last.pt").exists() else 0
-        sessions.append({"git": git_revision(), "device": _machine(r.train.device), "from_step": int(step),
-                         "precision": r.train.resolved().precision,
-                         "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
-        atomic_write_json(prov, {"recipe": r.name, "sessions": sessions})
-    model, run, info = train_or_load(r.split, r.train, data, val_refs_per_object=r.val_refs)
+    with run_lock(run):  # held through training (train_or_load takes it again)
+        if not (run / "last.pt").exists() and committed.exists():  # resume from the committed checkpoint
+            run.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(committed, run / "last.pt")
+            if committed.with_suffix(".provenance.json").exists():
+                shutil.copyfile(committed.with_suffix(".provenance.json"), run / "provenance.json")
+        if not (run / "done.json").exists():
+            _record_session(r, run)
+        model, run, info = train_or_load(r.split, r.train, data, val_refs_per_object=r.val_refs)
     return model, run, info, data
+
+
+def _record_session(r: Recipe, run: Path) -> None:
+    """One provenance record per training session (a resumed run may continue on another machine)."""
+    from .runinfo import git_revision
+
+    run.mkdir(parents=True, exist_ok=True)
+    prov = run / "provenance.json"
+    sessions = _sessions(read_json(prov)) if prov.exists() else []
+    step = read_checkpoint(run / "last.pt")["global_step"] \
+        if (run / "last.pt").exists() else 0
+    sessions.append({"git": git_revision(), "device": _machine(r.train.device), "from_step": int(step),
+                     "precision": r.train.resolved().precision,
+                     "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+    atomic_write_json(prov, {"recipe": r.name, "sessions": sessions})
 
 
 def _sessions(prov: dict) -> list[dict]:
@@ -198,8 +202,8 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
     from .validation import plot_history, validate
 
     run = Path(run)
-    best = torch.load(run / "best.pt", map_location="cpu", weights_only=True)
-    last = torch.load(run / "last.pt", map_location="cpu", weights_only=True)
+    check_run(run)
+    best, last = read_checkpoint(run / "best.pt"), read_checkpoint(run / "last.pt")
     done = read_json(run / "done.json")
     sessions = _sessions(read_json(run / "provenance.json"))
     for sess in sessions:  # runs started before provenance recorded the machine: the publishing one
