@@ -19,9 +19,11 @@ from tqdm.auto import tqdm
 
 from .device import resolve_device
 from .features import FeatureCache, encode_batch, encode_views, model_fingerprint
-from .fileio import atomic_save_npy, sha256_file, stable_hash
+from .fileio import (DamagedEntry, atomic_save_npy, atomic_write_json, check_sha256, read_json, sha256_file,
+                     stable_hash, touch)
 from .figures import _plt, save
 from .meshes import ObjectMesh, load_mesh_file, normalise, set_color
+from .locks import entry_lock, made_by
 from .paths import cache_dir
 from .render import RenderConfig, render_reference
 from .rotations import haar_uniform
@@ -129,18 +131,56 @@ def render_custom_references(obj: ObjectMesh, n: int, cfg: RenderConfig, seed: i
                              cache: str | os.PathLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(n, S, S, 3) uint8 references and (n, 3, 3) rotations, cached by mesh hash.
 
-    Renders in this process (one GL context; do not fork afterwards).
+    Renders in this process (one GL context; do not fork afterwards), one process per
+    reference set at a time (its lock); ``meta.json`` (written last) records the sha256 of
+    both arrays, and a set that no longer matches them is rendered again.
     """
     d = _refs_dir(obj.name, _refset_key(obj.sha256, n, seed, cfg, obj.textured), cache)
-    if (d / "images.npy").exists():
-        return np.load(d / "images.npy"), np.load(d / "rotations.npy")
-    R = haar_uniform(n, seed=seed)
-    imgs = np.zeros((n, cfg.size, cfg.size, 3), np.uint8)
-    for i in tqdm(range(n), desc=f"rendering {obj.name}", unit="img"):
-        imgs[i] = render_reference(obj, R[i], cfg)[0]
-    atomic_save_npy(d / "rotations.npy", R.astype(np.float32))
-    atomic_save_npy(d / "images.npy", imgs)
-    return imgs, R.astype(np.float32)
+    done = _cached_refs(d)
+    if done is not None:
+        return done
+    with entry_lock(d, f"bring-your-own references {d.name}"):
+        done = _cached_refs(d, warn=True)
+        if done is not None:
+            return done
+        R64 = haar_uniform(n, seed=seed)
+        imgs = np.zeros((n, cfg.size, cfg.size, 3), np.uint8)
+        for i in tqdm(range(n), desc=f"rendering {obj.name}", unit="img"):
+            imgs[i] = render_reference(obj, R64[i], cfg)[0]
+        R = R64.astype(np.float32)
+        atomic_save_npy(d / "rotations.npy", R)
+        atomic_save_npy(d / "images.npy", imgs)
+        atomic_write_json(d / "meta.json", {"mesh_sha256": obj.sha256, "n": n, "seed": seed, "made_by": made_by(),
+                                            "sha256": {f: sha256_file(d / f) for f in BYO_FILES}})
+    return imgs, R
+
+
+BYO_FILES = ("images.npy", "rotations.npy")
+
+
+def check_refs(d: Path) -> None:
+    """Raise :class:`DamagedEntry` unless reference set ``d`` matches the sha256 sums in its meta.json."""
+    meta = d / "meta.json"
+    try:
+        sums = read_json(meta)["sha256"]
+    except (ValueError, KeyError, TypeError):
+        raise DamagedEntry(f"{meta}: unreadable or without checksums; delete {d} to re-render") from None
+    for f in BYO_FILES:
+        check_sha256(d / f, sums.get(f, ""), meta, f"delete {d} to re-render (or rerun: damaged sets are re-rendered)")
+
+
+def _cached_refs(d: Path, warn: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+    """The finished, intact reference set in ``d`` (images memory-mapped), or None."""
+    if not (d / "meta.json").exists():
+        return None
+    try:
+        check_refs(d)
+    except DamagedEntry as e:
+        if warn:
+            warnings.warn(f"{e}; re-rendering it", RuntimeWarning, stacklevel=3)
+        return None
+    touch(d / "meta.json")  # last use
+    return np.load(d / "images.npy", mmap_mode="r"), np.load(d / "rotations.npy")
 
 
 def _refs_dir(name: str, key: str, cache: str | os.PathLike | None) -> Path:
@@ -171,9 +211,13 @@ def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.
     fc = FeatureCache(cache_dir(cache) / "features")
     mkey = model_fingerprint(model)
     rdir = _refs_dir(mesh_path.stem, key, cache)
-    feats = fc.load(mkey, f"byo-{key}")
-    if feats is not None and (rdir / "images.npy").exists():
-        refs, R = np.load(rdir / "images.npy", mmap_mode="r"), np.load(rdir / "rotations.npy")
+    try:
+        feats = fc.load(mkey, f"byo-{key}")
+    except DamagedEntry:
+        feats = None  # get_or_build reports and rebuilds it
+    cached = _cached_refs(rdir) if feats is not None else None
+    if cached is not None:
+        refs, R = cached
     else:
         obj = custom_object(mesh_path, color, sha256=sha)
         refs, R = render_custom_references(obj, n_refs, cfg, cache=cache)

@@ -208,13 +208,20 @@ def _load_complete(d: Path, spec: ViewSetSpec, manifest: Manifest, mmap: bool) -
 SET_FILES = ("images.npy", "masks.npy", "rotations.npy")
 
 
-def check_set(d: Path) -> None:
-    """Raise :class:`DamagedEntry` unless the finished set ``d`` matches the sha256 sums in its meta.json."""
+def check_set(d: Path, backfill: bool = True) -> None:
+    """Raise :class:`DamagedEntry` unless the finished set ``d`` matches the sha256 sums in its
+    meta.json. A set finished before checksums were recorded gets them now (``backfill``) or
+    is not checked."""
     meta_p = d / "meta.json"
     try:
-        sums = read_json(meta_p)["sha256"]
-    except (ValueError, KeyError, TypeError):
-        raise DamagedEntry(f"{meta_p}: unreadable or without checksums; delete {d} to re-render") from None
+        meta = read_json(meta_p)
+        sums = meta.get("sha256")
+    except (ValueError, AttributeError):
+        raise DamagedEntry(f"{meta_p}: unreadable; delete {d} to re-render") from None
+    if sums is None:
+        if backfill:
+            atomic_write_json(meta_p, {**meta, "sha256": {f: sha256_file(d / f) for f in SET_FILES}})
+        return
     for f in SET_FILES:
         check_sha256(d / f, sums.get(f, ""), meta_p, f"delete {d} to re-render (or rerun: damaged sets are re-rendered)")
 

@@ -7,7 +7,8 @@ JSON sidecar after every batch (so an interrupted build resumes where it
 stopped) and renames the file into place only when complete.
 
 Layout: ``<root>/<model_key>/<refset_key>.f16`` (raw C-order float16, no
-header) and ``<root>/<model_key>/<refset_key>.json``::
+header) and ``<root>/<model_key>/<refset_key>.json``; ``.<refset_key>.f16.lock`` is held by
+the one process building it::
 
     {"shape": [N, C, L], "dtype": "float16", "done": n, "complete": bool,
      "keys": {"model_key": ..., "refset_key": ..., "name": ..., "n_views": N,
@@ -33,7 +34,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .fileio import DamagedEntry, atomic_write_json, preallocate, sha256_file, touch
-from .locks import entry_lock
+from .locks import entry_lock, made_by
 from .views import ObjectViews
 
 SIDECAR_VERSION = 1
@@ -319,5 +320,5 @@ class FeatureCache:
                        sha256: str | None = None) -> None:
         atomic_write_json(path, {"version": SIDECAR_VERSION, "shape": list(shape), "dtype": "float16",
                                  "done": int(done), "complete": bool(complete), "keys": keys,
-                                 "sha256": sha256})
+                                 "sha256": sha256, "made_by": made_by()})
 

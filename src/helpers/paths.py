@@ -34,3 +34,43 @@ def reports_dir(preset: str | None = None) -> Path:
     """``<repo>/reports`` or ``<repo>/reports/<preset>``."""
     root = REPO_ROOT / "reports"
     return root / preset if preset else root
+
+
+def _roots() -> list[tuple[str, str]]:
+    """(absolute prefix, what it stands for), longest first, so that the most specific role wins
+    (a cache or virtual environment inside the repository is named as such)."""
+    import sys
+    import tempfile
+
+    repo = str(REPO_ROOT)
+    pairs = [(str(cache_dir()), "<cache>"), (sys.prefix, "<venv>"), (sys.base_prefix, "<python>"),
+             (repo + os.sep, ""), (repo, "."), (os.path.realpath(tempfile.gettempdir()), "<tmp>"),
+             (tempfile.gettempdir(), "<tmp>"), (os.path.expanduser("~"), "~")]
+    pairs = [(p, r) for p, r in pairs if len(p) > 1]  # never "/" itself
+    return sorted(set(pairs), key=lambda pr: -len(pr[0]))
+
+
+def portable(value: str | os.PathLike) -> str:
+    """``value`` with this machine's absolute paths named by their role, so that a result file
+    says the same on every machine and tells nothing about it: the cache root becomes
+    ``<cache>``, the repository a relative path, the Python environment ``<venv>`` (its base
+    installation ``<python>``), the temporary folder ``<tmp>`` and the home folder ``~``."""
+    import re
+
+    text = os.fspath(value)
+    for prefix, role in _roots():
+        # Only whole path components: "/work/main" must not rewrite "/work/main2".
+        text = re.sub(re.escape(prefix) + r"(?![\w-]|\.\w)" if not prefix.endswith(os.sep) else re.escape(prefix),
+                      role.replace("\\", "\\\\"), text)
+    return text
+
+
+def portable_obj(obj):
+    """:func:`portable` applied to every string inside a JSON-like object (dicts, lists)."""
+    if isinstance(obj, dict):
+        return {k: portable_obj(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [portable_obj(v) for v in obj]
+    if isinstance(obj, (str, Path)):
+        return portable(obj)
+    return obj

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from .fileio import atomic_write_json
-from .paths import REPO_ROOT
+from .paths import REPO_ROOT, portable_obj
 
 PACKAGES = ("helpers", "torch", "numpy", "scipy", "trimesh", "pyrender-maintained", "PyOpenGL", "opencv-python-headless",
             "scikit-image", "pandas", "matplotlib", "papermill", "pybullet", "robosuite", "pyvista")
@@ -66,8 +66,9 @@ def device_info(device: str = "auto") -> dict[str, Any]:
 
 def run_record(name: str, params: dict[str, Any], seed: int | None = None, device: str = "auto",
                extra: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Everything needed to say how a result was produced."""
-    return {
+    """Everything needed to say how a result was produced (this machine's paths named by their
+    role: :func:`helpers.paths.portable`)."""
+    return portable_obj({
         "name": name,
         "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "parameters": params,
@@ -79,7 +80,7 @@ def run_record(name: str, params: dict[str, Any], seed: int | None = None, devic
         "device": device_info(device),
         "gl_platform": os.environ.get("PYOPENGL_PLATFORM"),
         **(extra or {}),
-    }
+    })
 
 
 def start_run(name: str, params: dict[str, Any], out_dir: str | os.PathLike, device: str = "auto") -> Path:

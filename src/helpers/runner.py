@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -24,10 +25,11 @@ from pathlib import Path
 
 import yaml
 
-from .fileio import atomic_write_json, stable_hash
+from .fileio import atomic_write_json, atomic_write_text, stable_hash
+from .locks import entry_lock
 from .param_values import check_values
 from .params import NOTEBOOK_DIR, ParameterError, check_mapping, declared_parameters
-from .paths import REPO_ROOT
+from .paths import REPO_ROOT, portable_obj
 
 PRESET_DIR = REPO_ROOT / "presets"
 PRESETS = ("smoke", "quick", "standard", "long", "paper")
@@ -40,8 +42,8 @@ def notebooks() -> list[str]:
     return sorted(p.stem for p in NOTEBOOK_DIR.glob("[0-9][0-9]_*.ipynb"))
 
 
-def preset_parameters(preset: str, notebook: str) -> dict:
-    """Validated parameters of ``notebook`` under ``preset`` (out_dir set by preset)."""
+def preset_parameters(preset: str, notebook: str, reports: str = "reports") -> dict:
+    """Validated parameters of ``notebook`` under ``preset`` (out_dir: ``<reports>/<preset>/<notebook>``)."""
     if preset not in PRESETS:
         raise ParameterError(f"preset must be one of {PRESETS}, got {preset!r}")
     declared = declared_parameters(NOTEBOOK_DIR / f"{notebook}.ipynb")
@@ -51,7 +53,7 @@ def preset_parameters(preset: str, notebook: str) -> dict:
         given = yaml.safe_load(f.read_text()) or {}
         if not isinstance(given, dict):
             raise ParameterError(f"{f}: expected a mapping of parameter names to values")
-    given.setdefault("out_dir", f"reports/{preset}/{notebook}")
+    given.setdefault("out_dir", f"{reports}/{preset}/{notebook}")
     try:
         return check_mapping(notebook, declared, given)
     except ParameterError as e:
@@ -83,15 +85,16 @@ def _read_state(path: Path) -> dict:
 
 
 def run(preset: str, only: list[str] | None = None, html: bool = True, report: bool = True,
-        restart: bool = False) -> Path:
-    """Run the notebooks of ``preset``; returns the report folder.
+        restart: bool = False, reports: str | Path | None = None) -> Path:
+    """Run the notebooks of ``preset``; returns the report folder ``<reports>/<preset>``
+    (``reports`` default: the repository's ``reports/``).
 
     A notebook that finished in an earlier call (same parameters, same code) is skipped,
     so an interrupted run resumes at the notebook it was in (``restart`` reruns all).
     Inside a notebook, finished training runs and encoded features are reused from the
-    cache, so the interrupted notebook itself resumes from its last checkpoint."""
-    import papermill as pm
-
+    cache, so the interrupted notebook itself resumes from its last checkpoint. Two
+    runners writing the same report folder take turns (its lock); runners with different
+    report folders share the cache safely (every cache entry has its own lock)."""
     names = notebooks()
     if only is not None:
         if not only:
@@ -100,11 +103,25 @@ def run(preset: str, only: list[str] | None = None, html: bool = True, report: b
         if unknown:
             raise ParameterError(f"--only: unknown notebook(s) {unknown}; available: {names}")
         names = [n for n in names if n in only]
-    params = {n: preset_parameters(preset, n) for n in names}  # validate everything first
+    root = Path(reports) if reports is not None else REPO_ROOT / "reports"
+    params = {n: preset_parameters(preset, n, str(root) if reports is not None else "reports")
+              for n in names}  # validate everything first
     for n in names:  # values too (not only names and types), before any notebook starts
         check_values(n, params[n])
-    out = REPO_ROOT / "reports" / preset
+    out = root / preset
     out.mkdir(parents=True, exist_ok=True)
+    with entry_lock(out, f"report folder {out.name} (another runner of this preset)"):
+        _run_notebooks(preset, names, params, out, html, restart)
+    if report:
+        from .report import build_report
+
+        build_report(preset, out.parent)
+    return out
+
+
+def _run_notebooks(preset: str, names: list[str], params: dict, out: Path, html: bool, restart: bool) -> None:
+    import papermill as pm
+
     state_path = out / STATE_FILE
     state = {} if restart else _read_state(state_path)
     # Timings of notebooks this call does not run (``--only``) stay: they time the outputs that stay.
@@ -127,20 +144,51 @@ def run(preset: str, only: list[str] | None = None, html: bool = True, report: b
         t0 = time.perf_counter()
         print(f"[runner] {preset}: {n}" + (f" (attempt {attempts}; {earlier:.0f} s spent earlier)" if earlier else ""),
               flush=True)
-        with _Heartbeat(state_path, state, n, earlier, t0):
-            pm.execute_notebook(str(NOTEBOOK_DIR / f"{n}.ipynb"), str(dst), parameters=params[n],
-                                cwd=str(NOTEBOOK_DIR), progress_bar=True, kernel_name="python3")
-            if html:
-                export_html(dst)
+        os.environ["HELPERS_MADE_BY"] = f"{preset}/{n}"  # the kernel inherits it: cache entries name their maker
+        try:
+            with _Heartbeat(state_path, state, n, earlier, t0):
+                try:
+                    pm.execute_notebook(str(NOTEBOOK_DIR / f"{n}.ipynb"), str(dst), parameters=params[n],
+                                        cwd=str(NOTEBOOK_DIR), progress_bar=True, kernel_name="python3",
+                                        kernel_manager_class=_ipc_kernel_manager())
+                finally:
+                    portable_notebook(dst)  # also a failed run's notebook: it is what the user reads
+                if html:
+                    export_html(dst)
+        finally:
+            os.environ.pop("HELPERS_MADE_BY", None)
         timings[n] = earlier + time.perf_counter() - t0
         state[n] = {"key": key, "seconds": timings[n], "done": True, "attempts": attempts}
         atomic_write_json(out / "timings.json", timings)
         atomic_write_json(state_path, state)
-    if report:
-        from .report import build_report
 
-        build_report(preset)
-    return out
+
+def _ipc_kernel_manager() -> type:
+    """A kernel manager whose kernels talk over local socket files (ZeroMQ ipc) instead of TCP
+    ports: nothing listens on the network, and ipykernel's warning about unencrypted TCP has no
+    cause (the socket files live in Jupyter's private runtime folder, mode 0700)."""
+    from jupyter_client import AsyncKernelManager
+    from traitlets import default
+
+    class IPCKernelManager(AsyncKernelManager):
+        @default("transport")
+        def _transport_default(self) -> str:
+            return "ipc"
+
+    return IPCKernelManager
+
+
+def portable_notebook(path: Path) -> None:
+    """Rewrite executed notebook ``path`` with this machine's absolute paths named by their role
+    (:func:`helpers.paths.portable`): in outputs, tracebacks and papermill's metadata."""
+    if not path.exists():
+        return
+    text = path.read_text(encoding="utf-8")
+    try:
+        nb = json.loads(text)
+    except ValueError:
+        return  # not a notebook papermill finished writing; left as it is
+    atomic_write_text(path, json.dumps(portable_obj(nb), indent=1, ensure_ascii=False) + "\n")
 
 
 class _Heartbeat:
@@ -188,10 +236,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-report", action="store_true")
     ap.add_argument("--restart", action="store_true",
                     help="rerun every notebook (default: skip those finished earlier with the same parameters and code)")
+    ap.add_argument("--reports", default=None,
+                    help="report root: writes <reports>/<preset>/ (default: the repository's reports/)")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
     try:
-        out = run(a.preset, a.only, html=not a.no_html, report=not a.no_report, restart=a.restart)
+        out = run(a.preset, a.only, html=not a.no_html, report=not a.no_report, restart=a.restart,
+                  reports=a.reports)
     except ParameterError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

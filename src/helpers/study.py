@@ -203,12 +203,15 @@ def _finished_run(run: Path) -> bool:
     return (run / "done.json").exists()
 
 
-def check_run(run: Path) -> dict:
+def check_run(run: Path, backfill: bool = True) -> dict:
     """done.json of finished run ``run`` after checking best.pt and last.pt against its sha256
-    sums (a run finished before checksums were recorded gets them now)."""
+    sums. A run finished before checksums were recorded gets them now (``backfill``) or is
+    not checked."""
     done = run / "done.json"
     info = read_json(done)
     if "sha256" not in info:
+        if not backfill:
+            return info
         with run_lock(run):
             info = read_json(done)
             info.setdefault("sha256", {f: sha256_file(run / f) for f in ("best.pt", "last.pt")})
