@@ -238,6 +238,7 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
     import torch
 
     from helpers.fileio import atomic_write_json
+    from helpers.paths import portable_obj
     from helpers.runinfo import run_record
 
     gate = timing.configure(cfg.quiet_threshold, cfg.wait_quiet_s, cfg.retry_contended)
@@ -306,7 +307,7 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
     res["loadavg_end"] = list(os.getloadavg())
     res["quiet_wait_s"] = gate.waited_s
     res["total_seconds"] = time.perf_counter() - t_start
-    atomic_write_json(out_path, res)
+    atomic_write_json(out_path, portable_obj(res))
     return res
 
 

@@ -35,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from helpers.byo import estimate_rotation
     from helpers.fileio import atomic_write_json
+    from helpers.paths import portable_obj
     from helpers.manifest import load_manifest
     from helpers.model import ModelConfig, OrientationNet
     from helpers.runinfo import run_record
@@ -66,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
            "second_call_s_all": later, "second_call_s_median": float(np.median(later)),
            "speedup_second_vs_first": first / float(np.median(later)),
            "provenance": run_record("bench_byo", vars(a))}
-    atomic_write_json(a.out, res)
+    atomic_write_json(a.out, portable_obj(res))
     print(f"first call {first:.1f} s, later calls median {np.median(later):.3f} s "
           f"({res['speedup_second_vs_first']:.0f}x) -> {a.out}")
     return 0

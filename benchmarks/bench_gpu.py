@@ -259,8 +259,9 @@ def device_info(ctx: Ctx) -> dict:
 def write_json(path: Path, obj: dict) -> None:
     try:
         from helpers.fileio import atomic_write_json
+        from helpers.paths import portable_obj
 
-        atomic_write_json(path, obj)
+        atomic_write_json(path, portable_obj(obj))
         return
     except ImportError:
         pass

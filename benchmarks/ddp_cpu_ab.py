@@ -157,7 +157,9 @@ def main(argv: list[str] | None = None) -> int:
         "weights_max_abs_diff_A_repeats": same_seed_a,
     }
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(res, indent=1) + "\n")
+    from helpers.paths import portable_obj
+
+    Path(args.out).write_text(json.dumps(portable_obj(res), indent=1) + "\n")
     log(f"B/A = {res['ratio_B_over_A']:.3f}; loss diff {loss_diff:.2e}; weights max diff {float(w.max()):.2e} "
         f"-> {args.out}")
     return 0

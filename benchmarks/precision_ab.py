@@ -119,7 +119,9 @@ def main(argv: list[str] | None = None) -> int:
            "cpu": describe(cpu), "auto_picks": resolve_precision("auto", cpu),
            "speed": speed(a.repeats), "fidelity": fidelity(a.steps, a.tiny)}
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps(out, indent=1))
+    from helpers.paths import portable_obj
+
+    Path(a.out).write_text(json.dumps(portable_obj(out), indent=1))
     s, f = out["speed"], out["fidelity"]
     print(f"bf16/fp32 images/s {s['ratio_bf16_over_fp32']:.2f} ({s['images_per_s']['bf16']:.1f} vs "
           f"{s['images_per_s']['fp32']:.1f}); {f['steps']} steps: max loss diff {f['max_epoch_loss_diff']:.3f}, "

@@ -77,7 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     else:
         for name in args.only or RECIPES:
             results[name] = run(name, RECIPES[name])
-    out.write_text(json.dumps(results, indent=1) + "\n")
+    from helpers.paths import portable_obj
+
+    out.write_text(json.dumps(portable_obj(results), indent=1) + "\n")
     print(json.dumps({k: v["curve"][-1] for k, v in results.items()}, indent=1))
     return 0
 

@@ -155,7 +155,9 @@ def main(argv: list[str] | None = None) -> int:
     for m in methods:
         out["methods"][m]["greedy_over_B"] = g["B_s_per_query_median"] / out["methods"][m]["B_s_per_query_median"]
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
+    from helpers.paths import portable_obj
+
+    Path(args.out).write_text(json.dumps(portable_obj(out), indent=2) + "\n")
     log(f"wrote {args.out}")
     return 0
 

@@ -201,3 +201,36 @@ def test_two_smoke_runners_on_one_cache_both_succeed(tmp_path):
             if f.suffix in (".json", ".ipynb", ".md", ".csv"):
                 assert str(tmp_path) not in f.read_text(errors="replace"), f"{f} holds a machine path"
     assert _leftovers(tmp_path / "cache") == []
+
+
+# Absolute paths in committed results: any "/dir/..." at the start of a token, except the system
+# interfaces that read the same on every Linux machine.
+_ABS = re.compile(r"""(?:^|[\s"'(=:,\[])(/[A-Za-z_.][\w.+-]*/[\w.+-]+)""", re.M)
+_SYSTEM = ("/proc/", "/sys/", "/dev/")
+
+
+def test_no_committed_result_holds_a_machine_path():
+    repo = Path(__file__).resolve().parents[1]
+    files = subprocess.run(["git", "ls-files", "reports", "benchmarks/results"], cwd=repo, capture_output=True,
+                           text=True, check=True).stdout.split()
+    assert files
+    found = []
+    for f in files:
+        try:
+            text = (repo / f).read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            continue  # images
+        found += [(f, m) for m in _ABS.findall(text) if not m.startswith(_SYSTEM)]
+    assert found == [], found[:10]
+
+
+def test_portable_names_paths_by_their_role(monkeypatch, tmp_path):
+    from helpers.paths import REPO_ROOT, portable, portable_obj
+
+    monkeypatch.setenv("HELPERS_CACHE_DIR", str(tmp_path / "c"))
+    assert portable(tmp_path / "c" / "runs" / "x" / "best.pt") == "<cache>/runs/x/best.pt"
+    assert portable(REPO_ROOT / "reports" / "quick") == "reports/quick"
+    assert portable(f"{sys.prefix}/lib/site-packages/m.py") == "<venv>/lib/site-packages/m.py"
+    assert portable(f"{REPO_ROOT}2/x") == f"{REPO_ROOT}2/x"  # another folder that only starts alike
+    assert portable_obj({"a": [str(tmp_path / "c")], "n": 3}) == {"a": ["<cache>"], "n": 3}
+    assert _ABS.findall(portable(f"see {tmp_path}/out.png")) == []
