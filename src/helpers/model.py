@@ -1,7 +1,7 @@
 """The retrieval network: multi-scale local features and their learned fusion.
 
 Follows the method of Zhao, Hu & Salzmann (ECCV 2022) as described in
-``METHOD.md``:
+``docs/method.md``:
 
 * :func:`preprocess` turns RGB crops into locally normalised grey images.
 * :class:`OrientationNet` encodes an image (with the :mod:`helpers.backbone`

@@ -2,7 +2,7 @@
 
 Source: Zhao, Hu, Salzmann, "Fusing Local Similarities for Retrieval-based 3D
 Orientation Estimation of Unseen Objects", ECCV 2022, as summarised in
-``shared/METHOD.md``. All are percentages on real LineMOD / LineMOD-O /
+``docs/method.md``. All are percentages on real LineMOD / LineMOD-O /
 T-LESS images, so they describe a different benchmark from our rendered one:
 reports compare trends, not values.
 """
