@@ -166,7 +166,12 @@ def _run_notebooks(preset: str, names: list[str], params: dict, out: Path, html:
 def _ipc_kernel_manager() -> type:
     """A kernel manager whose kernels talk over local socket files (ZeroMQ ipc) instead of TCP
     ports: nothing listens on the network, and ipykernel's warning about unencrypted TCP has no
-    cause (the socket files live in Jupyter's private runtime folder, mode 0700)."""
+    cause. Each kernel's sockets live in a fresh private folder (mode 0700, removed at shutdown):
+    jupyter_client's default, ``kernel-ipc-<n>`` in the working folder, would be shared by two
+    runners started from the same place."""
+    import shutil
+    import tempfile
+
     from jupyter_client import AsyncKernelManager
     from traitlets import default
 
@@ -174,6 +179,16 @@ def _ipc_kernel_manager() -> type:
         @default("transport")
         def _transport_default(self) -> str:
             return "ipc"
+
+        @default("ip")
+        def _ip_default(self) -> str:
+            self._ipc_dir = tempfile.mkdtemp(prefix="helpers-kernel-")
+            return os.path.join(self._ipc_dir, "k")
+
+        async def _async_cleanup_resources(self, restart: bool = False) -> None:
+            await super()._async_cleanup_resources(restart=restart)
+            if not restart and getattr(self, "_ipc_dir", None):
+                shutil.rmtree(self._ipc_dir, ignore_errors=True)
 
     return IPCKernelManager
 
