@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from . import zoo
 from .device import resolve_device
 from .features import FeatureCache, encode_batch, encode_views, model_fingerprint
 from .fileio import (DamagedEntry, atomic_save_npy, atomic_write_json, check_sha256, read_json, sha256_file,
@@ -26,7 +27,7 @@ from .meshes import ObjectMesh, load_mesh_file, normalise, set_color
 from .locks import entry_lock, made_by
 from .paths import cache_dir
 from .render import RenderConfig, render_reference
-from .rotations import haar_uniform
+from .rotations import geodesic_deg, haar_uniform
 from .views import ObjectViews
 
 
@@ -41,6 +42,8 @@ class ByoResult:
         ref_index: index of the retrieved reference.
         ref_image: (S, S, 3) uint8 retrieved reference.
         query_image: (S, S, 3) uint8 query as fed to the network.
+        alternatives: the next best references, best first: {"index", "score",
+            "R_m2c" (3x3 list), "deg_from_best" (geodesic angle to ``R_m2c``, degrees)}.
     """
 
     R_m2c: np.ndarray
@@ -48,6 +51,7 @@ class ByoResult:
     ref_index: int
     ref_image: np.ndarray
     query_image: np.ndarray
+    alternatives: list[dict] = field(default_factory=list)
 
 
 ALPHA_MODES = ("composite", "crop")
@@ -190,7 +194,7 @@ def _refs_dir(name: str, key: str, cache: str | os.PathLike | None) -> Path:
 def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.PathLike, n_refs: int = 1024,
                       render_size: int = 160, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
                       device: str = "auto", cache: str | os.PathLike | None = None,
-                      alpha: str = "composite") -> ByoResult:
+                      alpha: str = "composite", n_alternatives: int = 4) -> ByoResult:
     """Estimate the rotation of the object in ``query_path`` from its mesh ``mesh_path``.
 
     The references (renders) and their features are cached under ``<cache>/byo`` and
@@ -229,8 +233,13 @@ def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.
         # The cached features are a read-only memmap; score() only reads them (chunk by chunk).
         warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
         s = model.score(qf.to(dev), torch.from_numpy(np.asarray(feats)))[0].float().cpu().numpy()
-    k = int(np.argmax(s))
-    return ByoResult(R[k].astype(np.float64), float(s[k]), k, np.array(refs[k]), query)
+    order = np.argsort(-s, kind="stable")
+    k = int(order[0])
+    best = R[k].astype(np.float64)
+    alts = [{"index": int(j), "score": float(s[j]), "R_m2c": R[j].astype(np.float64).tolist(),
+             "deg_from_best": float(geodesic_deg(best, R[j].astype(np.float64)))}
+            for j in order[1:1 + n_alternatives]]
+    return ByoResult(best, float(s[k]), k, np.array(refs[k]), query, alts)
 
 
 def overlay_figure(res: ByoResult, path: str | os.PathLike) -> Path:
@@ -246,3 +255,78 @@ def overlay_figure(res: ByoResult, path: str | os.PathLike) -> Path:
         a.set_xticks([])
         a.set_yticks([])
     return save(fig, path)
+
+
+# ----------------------------------------------------------------------------- command line
+
+#: Zoo models tried in order when ``--model`` is not given: the all-objects model where it exists.
+DEFAULT_MODELS = ("all", "split1", "split2", "split3")
+
+
+def _default_model(available: dict) -> str:
+    for name in DEFAULT_MODELS:
+        if name in available:
+            return name
+    raise ValueError(f"no zoo model among {DEFAULT_MODELS} in models/zoo.yaml; pass --model NAME "
+                     f"(available: {sorted(available)})")
+
+
+def _quaternion_wxyz(R: np.ndarray) -> list[float]:
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return [float(w), float(x), float(y), float(z)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m helpers.byo MESH CROP [--model NAME] [--refs N] [--out overlay.png] [--json]``."""
+    import argparse
+    import json
+    import sys
+    import time
+
+    ap = argparse.ArgumentParser(prog="python -m helpers.byo",
+                                 description="Rotation of the object in CROP (an image) from its mesh MESH.")
+    ap.add_argument("mesh", help="mesh file (OBJ, PLY, STL, GLB...)")
+    ap.add_argument("crop", help="image of the object, cropped around it (PNG/JPEG; transparency is black)")
+    ap.add_argument("--model", default=None, help=f"zoo model (default: the first of {', '.join(DEFAULT_MODELS)})")
+    ap.add_argument("--refs", type=int, default=1024, help="references rendered from the mesh (default 1024)")
+    ap.add_argument("--out", default=None, help="write the query | retrieved | overlay figure here (PNG)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--cache", default=None, help="cache root (default: $HELPERS_CACHE_DIR or <repo>/cache)")
+    a = ap.parse_args(argv)
+    if a.refs < 1:
+        ap.error(f"--refs: expected a positive number of references, got {a.refs}")
+    t0 = time.perf_counter()
+    try:
+        name = a.model or _default_model(zoo.entries())
+        model, _ = zoo.load(name, device=a.device)
+        res = estimate_rotation(model, a.mesh, a.crop, n_refs=a.refs, device=a.device, cache=a.cache)
+    except (FileNotFoundError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if a.out:
+        overlay_figure(res, a.out)
+    out = {"model": name, "R_m2c": res.R_m2c.tolist(), "quaternion_wxyz": _quaternion_wxyz(res.R_m2c),
+           "score": res.score, "reference": res.ref_index, "n_references": a.refs,
+           "alternatives": res.alternatives, "seconds": time.perf_counter() - t0,
+           **({"overlay": a.out} if a.out else {})}
+    if a.json:
+        print(json.dumps(out, indent=1))
+        return 0
+    print(f"model {name}; best of {a.refs} references: #{res.ref_index}, score {res.score:.3f}")
+    print("R_m2c (model -> OpenCV camera):")
+    for row in res.R_m2c:
+        print("  " + "  ".join(f"{v:+.4f}" for v in row))
+    print("quaternion (w, x, y, z): " + ", ".join(f"{v:+.4f}" for v in out["quaternion_wxyz"]))
+    print("next best: " + "; ".join(f"#{x['index']} score {x['score']:.3f} at {x['deg_from_best']:.0f} deg"
+                                    for x in res.alternatives))
+    if a.out:
+        print(f"overlay: {a.out}")
+    print(f"{out['seconds']:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
