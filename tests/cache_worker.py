@@ -63,9 +63,30 @@ def build(kind: str, cache: str) -> str:
     raise SystemExit(f"unknown kind {kind!r}: expected render, features, train or train-data")
 
 
+def _report_builds() -> None:
+    """Print "building" whenever this process does the work of an entry (not when it loads one)."""
+    import helpers.datasets as ds
+    import helpers.features as ft
+    import helpers.study as st
+
+    def wrap(owner, name):
+        inner = getattr(owner, name)
+
+        def f(*a, **k):
+            print("building", flush=True)
+            return inner(*a, **k)
+
+        setattr(owner, name, f)
+
+    wrap(ds, "_render_chunks")
+    wrap(ft.FeatureCache, "_build")
+    wrap(st, "_train_run")
+
+
 def main() -> None:
     torch.set_num_threads(1)  # same arithmetic in every process: results comparable byte for byte
     kind, cache = sys.argv[1], sys.argv[2]
+    _report_builds()
     print("ready", flush=True)
     print("result", build(kind, cache), flush=True)
 

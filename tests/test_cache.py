@@ -73,8 +73,11 @@ def _fresh(ref: dict, kind: str, dst: Path) -> Path:
 def test_three_processes_build_one_entry_at_once_and_agree(reference, tmp_path, kind):
     cache = _fresh(reference, kind, tmp_path / "cache")
     procs = [_start(kind, cache) for _ in range(3)]
-    digests = [_result(p) for p in procs]
+    outs = [p.communicate(timeout=600) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0, 0], [e[-3000:] for _, e in outs]
+    digests = [re.search(r"^result ([0-9a-f]{64})$", o, re.M).group(1) for o, _ in outs]
     assert digests == [reference[kind]["digest"]] * 3  # byte-identical to a single-process build
+    assert sum(o.count("building") for o, _ in outs) == 1  # one built it, the others waited and loaded it
     assert _leftovers(cache) == []
 
 
@@ -144,20 +147,34 @@ def test_damaged_checkpoint_is_named_then_verify_finds_it_and_prune_removes_it(r
 
 
 def test_prune_leaves_what_a_live_process_builds_and_removes_unfinished_and_stale(tmp_path, capsys):
+    from helpers.fileio import atomic_save_npy, atomic_write_json, sha256_file
+
     cache = tmp_path / "cache"
     live, dead = cache / "renders" / "duck" / "reference-live", cache / "renders" / "duck" / "reference-dead"
     for d in (live, dead):
         d.mkdir(parents=True)
         (d / "chunk_00000.npz").write_bytes(b"x")
+    old = cache / "byo" / "mesh-old"  # a finished, intact entry last used 10 days ago, with a stray temporary
+    atomic_save_npy(old / "images.npy", np.zeros((2, 4, 4, 3), np.uint8))
+    atomic_save_npy(old / "rotations.npy", np.tile(np.eye(3, dtype=np.float32), (2, 1, 1)))
+    atomic_write_json(old / "meta.json", {"sha256": {f: sha256_file(old / f) for f in ("images.npy", "rotations.npy")}})
+    (old / ".images.npy.x1.tmp").write_bytes(b"half")
+    ten_days_ago = time.time() - 10 * 86400
+    os.utime(old / "meta.json", (ten_days_ago, ten_days_ago))
     holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from helpers.locks import entry_lock\n"
                                f"with entry_lock({str(live)!r}, 'test'):\n print('held', flush=True); time.sleep(60)"],
                               stdout=subprocess.PIPE, text=True, env=ENV)
     try:
         assert holder.stdout.readline().strip() == "held"
         assert is_locked(live) and not is_locked(dead)
-        assert cache_cli.main(["--cache", str(cache), "prune"]) == 0
-        assert live.exists() and not dead.exists()
-        assert "reference-dead: unfinished, no live builder" in capsys.readouterr().out
+        assert cache_cli.main(["--cache", str(cache), "prune"]) == 0  # resumable work and used entries stay
+        assert live.exists() and dead.exists() and (old / "meta.json").exists()
+        assert not (old / ".images.npy.x1.tmp").exists()
+        assert "temporary file of a dead process" in capsys.readouterr().out
+        assert cache_cli.main(["--cache", str(cache), "prune", "--unfinished", "--unused-days", "5"]) == 0
+        assert live.exists() and not dead.exists() and not old.exists()
+        out = capsys.readouterr().out
+        assert "reference-dead: unfinished, no live builder" in out and "mesh-old: unused for 10.0 days" in out
     finally:
         holder.kill()
         holder.communicate()

@@ -17,7 +17,6 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from . import zoo
 from .device import resolve_device
 from .features import FeatureCache, encode_batch, encode_views, model_fingerprint
 from .fileio import (DamagedEntry, atomic_save_npy, atomic_write_json, check_sha256, read_json, sha256_file,
@@ -147,6 +146,8 @@ def render_custom_references(obj: ObjectMesh, n: int, cfg: RenderConfig, seed: i
         done = _cached_refs(d, warn=True)
         if done is not None:
             return done
+        for stray in d.glob(".*.tmp"):  # left by a killed builder (we hold the lock)
+            stray.unlink(missing_ok=True)
         R64 = haar_uniform(n, seed=seed)
         imgs = np.zeros((n, cfg.size, cfg.size, 3), np.uint8)
         for i in tqdm(range(n), desc=f"rendering {obj.name}", unit="img"):
@@ -284,6 +285,8 @@ def main(argv: list[str] | None = None) -> int:
     import json
     import sys
     import time
+
+    from . import zoo  # here, not at the top: the zoo pulls in training, which the library part never needs
 
     ap = argparse.ArgumentParser(prog="python -m helpers.byo",
                                  description="Rotation of the object in CROP (an image) from its mesh MESH.")

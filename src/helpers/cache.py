@@ -12,10 +12,11 @@ byo       ``byo/<mesh>-<key>/``                       meta.json exists / its sha
 kernel    ``ext/fusion_<key>/``                       built by torch (listed, not checked)
 ========  ==========================================  ===========================================
 
-``verify`` exits 1 and names every damaged entry. ``prune`` removes damaged entries,
-unfinished entries and stray temporary files that no live process is building (each entry is
-taken under its lock first, so a build in progress is never touched), and with
-``--unused-days N`` finished entries not used for N days; ``--dry-run`` only lists them.
+``verify`` exits 1 and names every damaged entry. ``prune`` removes damaged entries and the
+temporary files of dead processes (each entry is taken under its lock first, so a build in
+progress is never touched); ``--unfinished`` also removes interrupted renders, feature files and
+trainings (which would otherwise resume where they stopped), ``--unused-days N`` finished entries
+not used for N days; ``--dry-run`` only lists what would go.
 Damaged render sets, feature files and reference sets are also rebuilt automatically when a run
 needs them; a damaged training run is an error until pruned (retraining can take hours).
 """
@@ -35,12 +36,12 @@ from .byo import check_refs
 from .datasets import check_set
 from .features import FeatureCache
 from .fileio import DamagedEntry, read_json
-from .locks import lock_path, try_entry_lock
+from .locks import try_entry_lock
 from .paths import cache_dir
 from .study import check_run
 
 KINDS = ("render", "features", "run", "byo", "kernel")
-TEMP_SUFFIXES = (".tmp", ".partial")
+TEMP_SUFFIXES = (".tmp",)  # a feature file's ".partial" is its resumable progress, not a temporary
 
 
 @dataclass
@@ -107,13 +108,13 @@ def damage(e: Entry) -> str | None:
         if e.kind == "render":
             check_set(e.path, backfill=False)
         elif e.kind == "features":
-            FeatureCache(e.path.parent.parent).load(e.path.parent.name, e.path.stem)
+            FeatureCache(e.path.parent.parent).load(e.path.parent.name, e.path.stem, mark_used=False)
         elif e.kind == "run":
             check_run(e.path, backfill=False)
         elif e.kind == "byo":
             check_refs(e.path)
-    except (DamagedEntry, OSError, KeyError) as err:
-        return str(err)
+    except (DamagedEntry, ValueError, OSError, KeyError, TypeError, AttributeError) as err:
+        return str(err)  # DamagedEntry names the file; the others mean an unreadable record
     return None
 
 
@@ -122,19 +123,31 @@ def _name(e: Entry, root: Path) -> str:
 
 
 def _remove(e: Entry) -> None:
+    # The lock file stays: a process may be waiting on it, and it is empty.
     if e.kind == "features":
         for f in e.files:
             f.unlink(missing_ok=True)
     else:
         shutil.rmtree(e.path, ignore_errors=True)
-    lock_path(e.path).unlink(missing_ok=True)  # held by us: filelock copes with an unlinked lock file
 
 
-def prune(root: Path, unused_days: float | None = None, keep_unfinished: bool = False,
+def _why_remove(e: Entry, now: float, unused_days: float | None, unfinished: bool) -> str | None:
+    idle = now - e.last_use()  # read first: checking a feature file must not count as a use
+    why = damage(e)
+    if why is None and not e.finished and unfinished:
+        why = "unfinished, no live builder (resumable work removed: --unfinished)"
+    if why is None and e.finished and unused_days is not None and idle > unused_days * 86400:
+        why = f"unused for {idle / 86400:.1f} days"
+    return why
+
+
+def prune(root: Path, unused_days: float | None = None, unfinished: bool = False,
           dry_run: bool = False) -> list[tuple[str, str]]:
-    """Remove damaged entries, unfinished ones and stray temporaries that no live process is
-    building, and (``unused_days``) finished entries unused for that long; returns
-    [(entry, reason)] of what was (``dry_run``: would be) removed."""
+    """Remove damaged entries and temporary files that no live process is building or writing;
+    with ``unfinished`` also unfinished entries of dead processes (interrupted renders, feature
+    files and trainings, which would otherwise resume), with ``unused_days`` finished entries
+    unused for that long. Returns [(entry or file, reason)] of what was (``dry_run``: would be)
+    removed."""
     out = []
     now = time.time()
     for e in entries(root):
@@ -143,21 +156,16 @@ def prune(root: Path, unused_days: float | None = None, keep_unfinished: bool = 
         with try_entry_lock(e.path, f"{e.kind} {_name(e, root)}") as free:
             if not free:
                 continue  # a live process is building or using it
-            why = damage(e)
-            if why is None and not e.finished and not keep_unfinished:
-                why = "unfinished, no live builder"
-            if why is None and unused_days is not None and now - e.last_use() > unused_days * 86400:
-                why = f"unused for {(now - e.last_use()) / 86400:.1f} days"
+            why = _why_remove(e, now, unused_days, unfinished)
             if why is not None:
                 out.append((_name(e, root), why))
                 if not dry_run:
                     _remove(e)
                 continue
-            for t in e.temporaries():  # left by a killed builder (none is alive: we hold the lock)
-                if e.kind != "features":  # a feature file's .partial is its resumable progress
-                    out.append((str(t.relative_to(root)), "temporary file of a dead process"))
-                    if not dry_run:
-                        t.unlink(missing_ok=True)
+            for t in e.temporaries():  # left by a killed writer (none is alive: we hold the lock)
+                out.append((str(t.relative_to(root)), "temporary file of a dead process"))
+                if not dry_run:
+                    t.unlink(missing_ok=True)
     return out
 
 
@@ -175,9 +183,10 @@ def main(argv: list[str] | None = None) -> int:
     ls = sub.add_parser("list", help="entries, kinds, sizes, last use, what made them")
     ls.add_argument("--json", action="store_true")
     sub.add_parser("verify", help="check every checksum; exit 1 naming each damaged entry")
-    pr = sub.add_parser("prune", help="remove damaged, unfinished and (--unused-days) stale entries")
-    pr.add_argument("--unused-days", type=float, default=None)
-    pr.add_argument("--keep-unfinished", action="store_true", help="keep resumable unfinished entries")
+    pr = sub.add_parser("prune", help="remove damaged entries and temporary files of dead processes")
+    pr.add_argument("--unused-days", type=float, default=None, help="also finished entries unused for N days")
+    pr.add_argument("--unfinished", action="store_true",
+                    help="also unfinished entries of dead processes (their work would otherwise resume)")
     pr.add_argument("--dry-run", action="store_true")
     a = ap.parse_args(argv)
     root = cache_dir(a.cache)
@@ -199,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"damaged {e.kind} {_name(e, root)}: {why}")
         print(f"{len(bad)} damaged entries in {root}" if bad else f"all entries intact in {root}")
         return 1 if bad else 0
-    removed = prune(root, a.unused_days, a.keep_unfinished, a.dry_run)
+    removed = prune(root, a.unused_days, a.unfinished, a.dry_run)
     for name, why in removed:
         print(f"{'would remove' if a.dry_run else 'removed'} {name}: {why}")
     print(f"{len(removed)} {'to remove' if a.dry_run else 'removed'} in {root}")

@@ -220,8 +220,13 @@ def check_set(d: Path, backfill: bool = True) -> None:
         raise DamagedEntry(f"{meta_p}: unreadable; delete {d} to re-render") from None
     if sums is None:
         if backfill:
-            atomic_write_json(meta_p, {**meta, "sha256": {f: sha256_file(d / f) for f in SET_FILES}})
+            try:
+                atomic_write_json(meta_p, {**meta, "sha256": {f: sha256_file(d / f) for f in SET_FILES}})
+            except OSError:
+                pass  # a read-only cache: the set stays unchecked
         return
+    if not isinstance(sums, dict):
+        raise DamagedEntry(f"{meta_p}: malformed checksums; delete {d} to re-render")
     for f in SET_FILES:
         check_sha256(d / f, sums.get(f, ""), meta_p, f"delete {d} to re-render (or rerun: damaged sets are re-rendered)")
 
@@ -277,6 +282,8 @@ def _start(d: Path, spec: ViewSetSpec, root: Path) -> list[tuple[ViewSetSpec, Pa
     """Prepare folder ``d`` for ``spec`` (clearing a damaged finished set); its chunks still to render."""
     for f in ("meta.json", *SET_FILES):  # what is left of a damaged set; its chunks are gone
         (d / f).unlink(missing_ok=True)
+    for stray in d.glob(".*.tmp"):  # left by a killed builder (we hold the set's lock)
+        stray.unlink(missing_ok=True)
     _mkdir(d, root)
     atomic_write_json(d / "spec.json", {"object": spec.object, "kind": spec.kind, "n": spec.n, "seed": spec.seed,
                                         **config_dict(spec.render, spec.style), "background_split": spec.background_split})

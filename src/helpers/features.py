@@ -159,8 +159,9 @@ class FeatureCache:
         base = _safe_key(refset_key, "refset_key")
         return d / f"{base}.f16", d / f"{base}.json", d / f".{base}.f16.partial"
 
-    def load(self, model_key: str, refset_key: str) -> np.memmap | None:
-        """The finished cached array (N, C, L) float16 read-only, or None if not built."""
+    def load(self, model_key: str, refset_key: str, mark_used: bool = True) -> np.memmap | None:
+        """The finished cached array (N, C, L) float16 read-only, or None if not built.
+        ``mark_used`` records this as the entry's last use (``python -m helpers.cache`` reads it)."""
         final, side, _ = self.paths(model_key, refset_key)
         if not final.is_file():
             return None
@@ -173,7 +174,8 @@ class FeatureCache:
             raise DamagedEntry(f"{final}: size {final.stat().st_size} bytes, expected {expected} "
                                f"for float16 {shape} (per {side}); delete both to rebuild")
         self._verify(final, side, meta, shape)
-        touch(side)  # the sidecar's modification time is the entry's last use
+        if mark_used:
+            touch(side)  # the sidecar's modification time is the entry's last use
         return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
 
     def _verify(self, final: Path, side: Path, meta: dict, shape: tuple) -> None:
@@ -251,9 +253,9 @@ class FeatureCache:
         """The finished, intact file, or None. A damaged one is reported; with ``rebuild_damaged``
         (under the entry's lock) it is deleted so that it is rebuilt."""
         final, side, _ = self.paths(model_key, refset_key)
-        meta = self._read_sidecar(side) if side.is_file() and final.is_file() else None
-        _check_keys(side, meta, keys)
         try:
+            meta = self._read_sidecar(side) if side.is_file() and final.is_file() else None
+            _check_keys(side, meta, keys)
             return self.load(model_key, refset_key)
         except DamagedEntry as e:
             if not rebuild_damaged:
@@ -268,8 +270,13 @@ class FeatureCache:
         """Encode ``images`` into the partial file (resuming where its sidecar says), then rename it into place."""
         final, side, tmp = self.paths(model_key, refset_key)
         n = len(images)
+        for stray in side.parent.glob(f".{side.name}.*.tmp"):  # a killed writer's; we hold the lock
+            stray.unlink(missing_ok=True)
         meta = self._read_sidecar(side) if side.is_file() else None
         _check_keys(side, meta, keys)
+        if meta is not None and meta.get("complete") and tmp.is_file() and meta.get("sha256") == sha256_file(tmp):
+            os.replace(tmp, final)  # killed between recording the checksum and the rename: nothing to redo
+            return self.load(model_key, refset_key)
         # Resume only if the temporary file and its recorded progress agree.
         start, mm = 0, None
         if meta is not None and tmp.is_file() and not meta.get("complete", False):

@@ -60,8 +60,9 @@ def portable(value: str | os.PathLike) -> str:
     text = os.fspath(value)
     for prefix, role in _roots():
         # Only whole path components: "/work/main" must not rewrite "/work/main2".
-        text = re.sub(re.escape(prefix) + r"(?![\w-]|\.\w)" if not prefix.endswith(os.sep) else re.escape(prefix),
-                      role.replace("\\", "\\\\"), text)
+        # ... and only where a path starts: "/tmp" must not rewrite "/var/tmp".
+        tail = r"(?![\w-]|\.\w)" if not prefix.endswith(os.sep) else ""
+        text = re.sub(r"(?<![\w.~-])" + re.escape(prefix) + tail, role.replace("\\", "\\\\"), text)
     return text
 
 

@@ -112,10 +112,10 @@ def run(preset: str, only: list[str] | None = None, html: bool = True, report: b
     out.mkdir(parents=True, exist_ok=True)
     with entry_lock(out, f"report folder {out.name} (another runner of this preset)"):
         _run_notebooks(preset, names, params, out, html, restart)
-    if report:
-        from .report import build_report
+        if report:
+            from .report import build_report
 
-        build_report(preset, out.parent)
+            build_report(preset, out.parent)
     return out
 
 
@@ -195,15 +195,32 @@ def _ipc_kernel_manager() -> type:
 
 def portable_notebook(path: Path) -> None:
     """Rewrite executed notebook ``path`` with this machine's absolute paths named by their role
-    (:func:`helpers.paths.portable`): in outputs, tracebacks and papermill's metadata."""
+    (:func:`helpers.paths.portable`): in sources, outputs, tracebacks and papermill's metadata;
+    base64 image data is left alone."""
     if not path.exists():
         return
-    text = path.read_text(encoding="utf-8")
     try:
-        nb = json.loads(text)
+        nb = json.loads(path.read_text(encoding="utf-8"))
     except ValueError:
         return  # not a notebook papermill finished writing; left as it is
-    atomic_write_text(path, json.dumps(portable_obj(nb), indent=1, ensure_ascii=False) + "\n")
+    images = {}
+    for c in nb.get("cells", []):
+        for o in c.get("outputs", []):
+            data = o.get("data", {})
+            for mime in [m for m in data if m.startswith("image/") and m != "image/svg+xml"]:
+                images[id(data), mime] = data.pop(mime)
+    nb = _restore_images(portable_obj(nb), nb, images)
+    atomic_write_text(path, json.dumps(nb, indent=1, ensure_ascii=False) + "\n")
+
+
+def _restore_images(new: dict, old: dict, images: dict) -> dict:
+    """Put the image payloads taken out of ``old``'s outputs back into the same outputs of ``new``."""
+    for c_new, c_old in zip(new.get("cells", []), old.get("cells", [])):
+        for o_new, o_old in zip(c_new.get("outputs", []), c_old.get("outputs", [])):
+            for (key, mime), payload in images.items():
+                if key == id(o_old.get("data")):
+                    o_new.setdefault("data", {})[mime] = payload
+    return new
 
 
 class _Heartbeat:

@@ -19,7 +19,7 @@ from .datasets import ViewSetSpec, render_sets
 from .device import resolve_device
 from .features import FeatureCache, encode_batch, encode_views, model_fingerprint
 from .distributed import distributed_world
-from .fileio import atomic_write_json, check_sha256, read_json, sha256_file, stable_hash, touch
+from .fileio import DamagedEntry, atomic_write_json, check_sha256, read_json, sha256_file, stable_hash, touch
 from .locks import entry_lock, made_by
 from .manifest import Manifest, load_manifest
 from .metrics import Record, per_query_table, summarise_queries
@@ -179,13 +179,12 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
         raise ValueError(f"train_or_load: no training queries rendered for {missing}; prepare_data with them")
     run = run_folder(split, train_cfg, data, val_refs_per_object)
     rank, world = distributed_world()
-    if not _finished_run(run):
-        if rank == 0:  # in a data-parallel run, process 0 holds the lock and writes; the others follow it
-            with run_lock(run):
-                if not _finished_run(run):
-                    _train_run(split, train_cfg, data, val_refs_per_object, run, seen, world)
-        else:
-            _train_run(split, train_cfg, data, val_refs_per_object, run, seen, world)
+    if world > 1:
+        _train_run_together(split, train_cfg, data, val_refs_per_object, run, seen, rank, world)
+    elif not _finished_run(run):
+        with run_lock(run):
+            if not _finished_run(run):  # another process may have finished it while we waited
+                _train_run(split, train_cfg, data, val_refs_per_object, run, seen, world)
     info = check_run(run)
     touch(run / "done.json")  # its modification time is the run's last use
     model, _ = load_model(run / "best.pt", device=getattr(train_cfg, "device", "auto"))
@@ -212,19 +211,47 @@ def check_run(run: Path, backfill: bool = True) -> dict:
     if "sha256" not in info:
         if not backfill:
             return info
-        with run_lock(run):
-            info = read_json(done)
-            info.setdefault("sha256", {f: sha256_file(run / f) for f in ("best.pt", "last.pt")})
-            atomic_write_json(done, info)
+        try:
+            with run_lock(run):
+                info = read_json(done)
+                info.setdefault("sha256", {f: sha256_file(run / f) for f in ("best.pt", "last.pt")})
+                atomic_write_json(done, info)
+        except OSError:
+            return info  # a read-only cache: the run stays unchecked
+    sums = info["sha256"]
+    if not isinstance(sums, dict):
+        raise DamagedEntry(f"{done}: malformed checksums; delete {run} (the next run retrains it)")
     for f in ("best.pt", "last.pt"):
-        check_sha256(run / f, info["sha256"].get(f, ""), done,
+        check_sha256(run / f, sums.get(f, ""), done,
                      f"remove the run with `python -m helpers.cache prune` (or delete {run}); the next run retrains it")
     return info
+
+
+def _train_run_together(split: int, train_cfg: Any, data: StudyData, val_refs_per_object: int, run: Path,
+                        seen: list[str], rank: int, world: int) -> None:
+    """Data-parallel: process 0 takes the run's lock and decides whether it still needs training;
+    every process learns that decision from it, so all of them train (or skip) together."""
+    import torch.distributed as dist
+
+    decision = [None]
+    if rank > 0:
+        dist.broadcast_object_list(decision, src=0)
+        if decision[0]:
+            _train_run(split, train_cfg, data, val_refs_per_object, run, seen, world)
+        return
+    with run_lock(run):  # held until every process has passed the final barrier of _train_run
+        decision[0] = not _finished_run(run)
+        dist.broadcast_object_list(decision, src=0)
+        if decision[0]:
+            _train_run(split, train_cfg, data, val_refs_per_object, run, seen, world)
 
 
 def _train_run(split: int, train_cfg: Any, data: StudyData, val_refs_per_object: int, run: Path,
                seen: list[str], world: int) -> None:
     curriculum = bool(getattr(train_cfg, "clean_steps", 0))
+    if distributed_world()[0] == 0:
+        for stray in run.glob(".*.tmp"):  # a killed writer's (this process holds the run's lock)
+            stray.unlink(missing_ok=True)
     t0 = time.perf_counter()
     res = train(train_cfg, {n: data.refs[n] for n in seen}, {n: data.train_q[n] for n in seen},
                 {n: _val_refs(data.refs[n], val_refs_per_object) for n in seen},
