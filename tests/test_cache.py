@@ -253,3 +253,4 @@ def test_portable_names_paths_by_their_role(monkeypatch, tmp_path):
     assert other.endswith(f"{REPO_ROOT.name}2/x") and not other.startswith(("2/", ".2"))
     assert portable_obj({"a": [str(tmp_path / "c")], "n": 3}) == {"a": ["<cache>"], "n": 3}
     assert _ABS.findall(portable(f"see {tmp_path}/out.png")) == []
+    assert portable(f"\x1b[0;32m{REPO_ROOT}/src/x.py\x1b[0m") == "\x1b[0;32msrc/x.py\x1b[0m"  # a traceback's colours

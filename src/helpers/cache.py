@@ -88,6 +88,7 @@ def entries(root: Path) -> Iterator[Entry]:
         final = side.with_suffix(".f16")
         meta = _meta(side)
         files = [f for f in (final, side, side.with_name(f".{final.name}.partial")) if f.exists()]
+        files += list(side.parent.glob(f".{side.name}.*.tmp"))  # a killed writer's sidecar temporaries
         yield Entry("features", final, files, bool(meta.get("complete")) and final.exists(), side, meta.get("made_by"))
     for d in sorted((root / "runs").glob("*")):
         if d.is_dir():

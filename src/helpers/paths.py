@@ -62,7 +62,8 @@ def portable(value: str | os.PathLike) -> str:
         # Only whole path components: "/work/main" must not rewrite "/work/main2".
         # ... and only where a path starts: "/tmp" must not rewrite "/var/tmp".
         tail = r"(?![\w-]|\.\w)" if not prefix.endswith(os.sep) else ""
-        text = re.sub(r"(?<![\w.~-])" + re.escape(prefix) + tail, role.replace("\\", "\\\\"), text)
+        # (A terminal colour code such as "\x1b[0;32m" may come right before a path in a traceback.)
+        text = re.sub(r"(?:(?<![\w.~-])|(?<=\dm))" + re.escape(prefix) + tail, role.replace("\\", "\\\\"), text)
     return text
 
 

@@ -230,7 +230,9 @@ def check_run(run: Path, backfill: bool = True) -> dict:
 def _train_run_together(split: int, train_cfg: Any, data: StudyData, val_refs_per_object: int, run: Path,
                         seen: list[str], rank: int, world: int) -> None:
     """Data-parallel: process 0 takes the run's lock and decides whether it still needs training;
-    every process learns that decision from it, so all of them train (or skip) together."""
+    every process learns that decision from it, so all of them train (or skip) together. (If
+    another job holds the lock for longer than the process group's collective timeout, the other
+    ranks' wait in the broadcast fails: do not launch a data-parallel run of a run in training.)"""
     import torch.distributed as dist
 
     decision = [None]
