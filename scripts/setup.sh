@@ -17,6 +17,15 @@ if [ -n "$missing" ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q $missing
 fi
 
+# Debian's Chromium for the real-browser test of the explorer notebook (tests/test_browser.py drives it
+# with Playwright; no browser is downloaded at run time). Optional: without it that test is skipped, saying why.
+if ! command -v chromium >/dev/null 2>&1; then
+  echo "setup: installing chromium (browser test)"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  { $SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q chromium; } \
+    || echo "setup: chromium could not be installed; tests/test_browser.py will be skipped"
+fi
+
 PY="${PYTHON:-python3}"
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv"

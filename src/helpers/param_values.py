@@ -11,6 +11,7 @@ whose own checks then run at the same early point.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from .params import ParameterError
@@ -25,7 +26,7 @@ _MIN_INT = {
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
     "occluded_queries": 0, "eval_refs": 0,
-    "n_seeds": 1, "test_queries": 0,
+    "n_seeds": 1, "test_queries": 0, "query": 0, "top_k": 1,
 }
 _CHOICES = {
     "lr_schedule": ("step", "cosine"),
@@ -107,7 +108,35 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         m = P["lr_milestones"]
         if list(m) != sorted(set(m)) or any(x < 1 for x in m):
             raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
+    if notebook.startswith("10"):
+        _check_explore(notebook, P)
     _check_configs(notebook, P)
+
+
+def _check_explore(notebook: str, P: dict[str, Any]) -> None:
+    """The explorer's model (zoo name or checkpoint file), first object and query."""
+    from .manifest import load_manifest
+    from .zoo import entries
+
+    choice = P["model"]
+    if choice.endswith(".pt") or "/" in choice:
+        if not Path(choice).is_file():
+            raise _err(notebook, "model", "a zoo model name or an existing checkpoint (.pt) file", choice)
+    else:
+        try:
+            zoo = entries()
+        except FileNotFoundError:
+            zoo = {}
+        if choice not in zoo:
+            raise _err(notebook, "model", f"a zoo model among {sorted(zoo)} or a checkpoint (.pt) file", choice)
+        if zoo[choice]["data"]["image_size"] != P["image_size"]:
+            raise _err(notebook, "model", f"a model taking image_size={P['image_size']} px crops "
+                       f"({choice} takes {zoo[choice]['data']['image_size']})", choice)
+    objects = load_manifest().seen_objects(0)
+    if P["object_name"] and P["object_name"] not in objects:
+        raise _err(notebook, "object_name", f"'' or a benchmark object among {objects}", P["object_name"])
+    if P["query"] >= P["n_test_queries"]:
+        raise _err(notebook, "query", f"an index below n_test_queries={P['n_test_queries']}", P["query"])
 
 
 def _check_variants(notebook: str, variants: list) -> None:
