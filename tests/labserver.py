@@ -14,6 +14,7 @@ import socket
 import subprocess
 import sys
 import time
+import json
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
@@ -41,8 +42,14 @@ def running_lab(root: Path, tmp: Path, *extra: str) -> Iterator[tuple[str, str]]
     if not jupyter.exists():
         pytest.fail(f"{jupyter} is missing: jupyterlab is not installed in the venv (scripts/setup.sh installs it)")
     port, token = free_port(), secrets.token_hex(16)
+    # Every Jupyter folder is the test's own: no user kernel spec, setting or workspace leaks in (the kernel is
+    # the venv's, found under sys.prefix), and JupyterLab does not ask to fetch news.
     env = {**os.environ, "JUPYTER_CONFIG_DIR": str(tmp / "config"), "JUPYTER_RUNTIME_DIR": str(tmp / "rt"),
-           "JUPYTERLAB_SETTINGS_DIR": str(tmp / "settings"), "JUPYTERLAB_WORKSPACES_DIR": str(tmp / "ws")}
+           "JUPYTER_DATA_DIR": str(tmp / "data"), "JUPYTERLAB_SETTINGS_DIR": str(tmp / "settings"),
+           "JUPYTERLAB_WORKSPACES_DIR": str(tmp / "ws")}
+    news = tmp / "settings" / "@jupyterlab" / "apputils-extension" / "notification.jupyterlab-settings"
+    news.parent.mkdir(parents=True, exist_ok=True)
+    news.write_text(json.dumps({"fetchNews": "false"}))
     log_path = tmp / "lab.log"
     log = open(log_path, "wb")
     proc = subprocess.Popen([str(jupyter), "lab", "--no-browser", "--ip=127.0.0.1", f"--port={port}",
@@ -65,8 +72,9 @@ def running_lab(root: Path, tmp: Path, *extra: str) -> Iterator[tuple[str, str]]
             time.sleep(0.5)
         yield base, token
     finally:
+        _stop_kernels(base, token)
         try:
-            os.killpg(proc.pid, signal.SIGTERM)  # the server shuts its kernels down on SIGTERM
+            os.killpg(proc.pid, signal.SIGTERM)
             proc.wait(timeout=30)
         except (ProcessLookupError, subprocess.TimeoutExpired):
             try:
@@ -75,3 +83,16 @@ def running_lab(root: Path, tmp: Path, *extra: str) -> Iterator[tuple[str, str]]
                 pass
             proc.wait(timeout=10)
         log.close()
+
+
+def _stop_kernels(base: str, token: str) -> None:
+    """Shut every kernel down through the REST API: kernels run in their own process group, so killing the
+    server's group would leave them (and their rendering workers) running."""
+    try:
+        with urllib.request.urlopen(f"{base}/api/kernels?token={token}", timeout=10) as r:
+            kernels = json.loads(r.read())
+        for k in kernels:
+            req = urllib.request.Request(f"{base}/api/kernels/{k['id']}?token={token}", method="DELETE")
+            urllib.request.urlopen(req, timeout=30).close()
+    except OSError:
+        pass  # the server is gone already; its kernels went with its shutdown

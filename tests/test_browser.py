@@ -41,8 +41,9 @@ def _explorer_copy(folder: Path) -> Path:
     """The explorer notebook with its out_dir pointing into ``folder``."""
     nb = json.loads((NOTEBOOK_DIR / "10_explore.ipynb").read_text())
     src = "".join(nb["cells"][1]["source"])
-    assert 'out_dir = "' in src
-    nb["cells"][1]["source"] = src.replace('out_dir = "reports/smoke/10_explore"', f'out_dir = "{folder / "out"}"')
+    new = src.replace('out_dir = "reports/smoke/10_explore"', f'out_dir = "{folder / "out"}"')
+    assert new != src, "the explorer's parameters cell no longer sets out_dir = \"reports/smoke/10_explore\""
+    nb["cells"][1]["source"] = new
     path = folder / "10_explore.ipynb"
     path.write_text(json.dumps(nb))
     return path
@@ -63,6 +64,8 @@ def test_explorer_runs_and_follows_the_query_slider(tmp_path):
     _explorer_copy(root)
     with running_lab(root, tmp_path) as (base, token), sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=chromium, headless=True, args=CHROMIUM_FLAGS)
+        print(f"chromium {browser.version} driven by playwright")
+        page = None
         try:
             page = browser.new_page(viewport={"width": 1500, "height": 1100})
             page.goto(f"{base}/lab/tree/10_explore.ipynb?token={token}", timeout=STEP_TIMEOUT_MS)
@@ -70,9 +73,6 @@ def test_explorer_runs_and_follows_the_query_slider(tmp_path):
             # The kernel is connected and idle once the status bar says so (the notebook's own indicator
             # reads "idle" before a kernel exists).
             page.get_by_text("Python 3 (ipykernel) | Idle").wait_for(timeout=STEP_TIMEOUT_MS)
-            news = page.get_by_role("button", name="No", exact=True)
-            if news.count():
-                news.first.click()  # JupyterLab's "notified about news?" toast would cover the panel
             page.get_by_role("menuitem", name="Run", exact=True).click()
             page.get_by_role("menuitem", name="Run All Cells", exact=True).click()
             page.wait_for_function(
@@ -80,6 +80,10 @@ def test_explorer_runs_and_follows_the_query_slider(tmp_path):
                 " const i = document.querySelector('img.explore-figure');"
                 " return s && s.innerText.includes('top-1') && i && (i.getAttribute('src') || '').length > 0 }",
                 timeout=RUN_TIMEOUT_MS)
+            # The last cells (the upload panel renders its references) run after the query panel appears;
+            # the slider's change would queue behind them, so wait until the notebook has finished.
+            page.wait_for_selector(".byo-run", timeout=RUN_TIMEOUT_MS)
+            page.get_by_text("Python 3 (ipykernel) | Idle").wait_for(timeout=RUN_TIMEOUT_MS)
             before = _shown(page)
             assert "query" in before[0] and "#0" in before[0], before[0]
             page.locator(".explore-query .noUi-handle").first.focus()
@@ -101,7 +105,8 @@ def test_explorer_runs_and_follows_the_query_slider(tmp_path):
             if os.environ.get("HELPERS_SCREENSHOT"):
                 Path(os.environ["HELPERS_SCREENSHOT"]).write_bytes(shot)
         except Exception:
-            _diagnose(page, tmp_path)
+            if page is not None:
+                _diagnose(page, tmp_path)
             raise
         finally:
             browser.close()

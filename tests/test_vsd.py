@@ -67,6 +67,16 @@ def test_occluded_pixels_are_not_counted():
     assert vsd_error(est, gt, no_depth, K, 15, 20) == pytest.approx(32 / 64)
 
 
+def test_an_estimate_behind_the_test_surface_keeps_the_gt_visible_pixels():
+    """The toolkit's rule: pixels visible at the true pose that the estimate covers stay in the estimate's mask,
+    even if the estimate lies more than delta behind the test surface (10 mm behind, delta 5, tau 20)."""
+    gt = _square(4, 4, 8, 1000.0)
+    est = gt + (gt > 0) * 10.0
+    assert vsd_error(est, gt, gt, K, delta=5, tau=20) == 0.0  # without the rule the union would be gt alone: 1.0
+    vis_est_alone = visible_mask(depth_to_distance(gt, K), depth_to_distance(est, K), 5)
+    assert not vis_est_alone.any()
+
+
 def test_bad_arguments_are_named():
     gt = _square(4, 4, 8, 1000.0)
     with pytest.raises(ValueError, match="cost must be one of"):
@@ -75,6 +85,8 @@ def test_bad_arguments_are_named():
         vsd_error(gt[:10], gt, gt, K, 15, 20)
     with pytest.raises(ValueError, match="delta and tau must be > 0"):
         vsd_error(gt, gt, gt, K, 0, 20)
+    with pytest.raises(ValueError, match="must be in the depth images' unit"):
+        vsd_error(gt / 1000, gt / 1000, gt / 1000, K, 15, 20)  # mm thresholds on metre depth
     assert vsd_accuracy(np.array([0.1, 0.3, 0.31, 0.9])) == 50.0
 
 

@@ -27,6 +27,7 @@ from .retrieval import model_scorer
 from .rotations import symmetric_geodesic_deg
 from .study import StudyData, encode_queries, reference_bank
 from .train import load_model
+from .paths import is_checkpoint_choice, repo_path
 from .zoo import ZOO_DIR, entries, load
 
 #: Rotation accuracy threshold of the study (degrees), as in every report.
@@ -45,15 +46,15 @@ def model_choices(image_size: int, zoo_dir: Path = ZOO_DIR) -> list[str]:
 def load_choice(choice: str, device: str = "auto", zoo_dir: Path = ZOO_DIR) -> tuple[Any, str]:
     """A model by zoo name (sha256 checked) or by checkpoint path (e.g. a cache run's ``best.pt``).
 
-    Returns (model in eval mode, a label for titles). ValueError names the choice and what
-    exists when it is neither a zoo model nor a file.
+    Returns (model in eval mode, the choice as its label). A relative checkpoint path is read from the
+    repository root. ValueError names the choice and what exists when it is neither a zoo model nor a file.
     """
-    if choice.endswith(".pt") or os.sep in choice:
-        path = Path(choice)
+    if is_checkpoint_choice(choice):
+        path = repo_path(choice)
         if not path.is_file():
-            raise FileNotFoundError(f"model {choice!r}: no checkpoint file there (expected a zoo name or a .pt file)")
+            raise FileNotFoundError(f"model {choice!r}: no checkpoint file {path} (expected a zoo name or a .pt file)")
         model, _ = load_model(path, device=device)
-        return model, path.parent.name or path.name
+        return model, choice
     model, _ = load(choice, device=device, zoo_dir=zoo_dir)
     return model, choice
 
@@ -98,6 +99,10 @@ def build_explorer(model: Any, label: str, data: StudyData, bank_objects: list[s
     missing = [n for n in query_objects if n not in data.test_q]
     if missing:
         raise ValueError(f"build_explorer: no test queries rendered for {missing}")
+    size = getattr(getattr(model, "cfg", None), "image_size", data.cfg.image_size)
+    if size != data.cfg.image_size:
+        raise ValueError(f"build_explorer: model {label!r} takes {size} px crops, the data are "
+                         f"{data.cfg.image_size} px (set image_size to {size})")
     dev = resolve_device(device)
     bank = reference_bank(model, data, bank_objects, device=device, k_ac=1, progress=False)
     feats = {n: encode_queries(model, data.test_q[n], device) for n in query_objects}
@@ -140,8 +145,9 @@ class QueryView:
                 f"error {t['err_deg']:.1f} deg, {verdict}")
 
 
-def inspect_query(ex: Explorer, obj: str, i: int, top_k: int = 5) -> QueryView:
-    """Top-``top_k`` references, fusion maps and score-vs-distance curve of query ``i`` of ``obj``."""
+def inspect_query(ex: Explorer, obj: str, i: int, top_k: int = 5, maps: bool = True) -> QueryView:
+    """Top-``top_k`` references, fusion maps (``maps=False``: none, for records) and score-vs-distance
+    curve of query ``i`` of ``obj``."""
     views = ex.data.test_q[obj]
     if not 0 <= i < len(views):
         raise IndexError(f"query {i} of {obj!r}: it has {len(views)} test queries")
@@ -159,15 +165,15 @@ def inspect_query(ex: Explorer, obj: str, i: int, top_k: int = 5) -> QueryView:
         top.append({"obj": name, "ref": r, "score": float(S[o, r]), "err_deg": err,
                     "ok": bool(name == obj and err < THRESHOLD_DEG)})
     t_obj = ex.bank.names.index(obj)
-    maps = {}
-    if hasattr(ex.model, "fusion_maps"):
+    fusion = {}
+    if maps and hasattr(ex.model, "fusion_maps"):
         o0 = ex.bank.names.index(top[0]["obj"])
         r0 = top[0]["ref"]
         ref = ex.bank.chunk(o0, r0, r0 + 1).float().to(ex.device)
         with torch.inference_mode():
             m = ex.model.fusion_maps(ex.query_feats[obj][i:i + 1].to(ex.device), ref)
-        maps = {lv: a[0].float().cpu().numpy() for lv, a in m.items()}
-    return QueryView(obj, i, top, dist, S[t_obj].copy(), maps)
+        fusion = {lv: a[0].float().cpu().numpy() for lv, a in m.items()}
+    return QueryView(obj, i, top, dist, S[t_obj].copy(), fusion)
 
 
 def query_figure(ex: Explorer, v: QueryView, path: str | os.PathLike | None = None):

@@ -56,7 +56,15 @@ def query_panel(make_explorer: Callable[[str], Explorer], models: list[str], obj
 
     def on_model(change: dict) -> None:
         summary.value = f"encoding references with {html.escape(change['new'])}..."
-        state["ex"] = make_explorer(change["new"])
+        try:
+            state["ex"] = make_explorer(change["new"])
+        except Exception as e:  # shown, and the dropdown goes back to the model still in use
+            model_dd.unobserve(on_model, names="value")
+            model_dd.value = change["old"]
+            model_dd.observe(on_model, names="value")
+            summary.value = (f"<span style='color:#b00'>model {html.escape(change['new'])}: "
+                             f"{html.escape(type(e).__name__ + ': ' + str(e))}</span>")
+            return
         show()
 
     def on_object(change: dict) -> None:

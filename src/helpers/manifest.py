@@ -87,11 +87,38 @@ class BackgroundEntry:
 
 
 @dataclass(frozen=True)
+class PartEntry:
+    """A generated T-LESS-like part (:mod:`helpers.parts`): its name, look and the sha256 of its PLY file."""
+
+    name: str
+    description: str
+    sha256: str
+
+
+@dataclass(frozen=True)
+class PartsSection:
+    """The manifest's ``parts``: generator module, its version, the seed and the pinned packages it needs."""
+
+    generator: str
+    version: int
+    seed: int
+    packages: dict
+    items: tuple[PartEntry, ...]
+
+    def part(self, name: str) -> PartEntry:
+        for p in self.items:
+            if p.name == name:
+                return p
+        raise KeyError(f"part {name!r} is not in the manifest's parts; known: {[p.name for p in self.items]}")
+
+
+@dataclass(frozen=True)
 class Manifest:
     path: Path
     sources: dict[str, Source]
     objects: tuple[ObjectEntry, ...]
     backgrounds: tuple[BackgroundEntry, ...]
+    parts: PartsSection | None = None
 
     def object(self, name: str) -> ObjectEntry:
         for o in self.objects:
@@ -212,7 +239,21 @@ def _load_manifest_cached(path_s: str, _mtime: int) -> Manifest:
         src = sources[src_name]
         backgrounds.append(BackgroundEntry(_req(b, "name", w), split, src, _file(_req(b, "file", w, dict), src.module, w),
                                            b.get("licence", src.licence)))
-    return Manifest(path, sources, tuple(objects), tuple(backgrounds))
+    return Manifest(path, sources, tuple(objects), tuple(backgrounds), _parts(raw.get("parts"), where))
+
+
+def _parts(raw: dict | None, where: str) -> PartsSection | None:
+    if raw is None:
+        return None
+    w = f"{where}: parts"
+    items = []
+    for i, p in enumerate(_req(raw, "items", w, list)):
+        sha = _req(p, "sha256", f"{w}.items[{i}]")
+        if len(sha) != 64:
+            raise ManifestError(f"{w}.items[{i}]: sha256 should be 64 hex characters")
+        items.append(PartEntry(_req(p, "name", f"{w}.items[{i}]"), p.get("description", ""), sha))
+    return PartsSection(_req(raw, "generator", w), _req(raw, "version", w, int), _req(raw, "seed", w, int),
+                        dict(_req(raw, "packages", w, dict)), tuple(items))
 
 
 def verify_file(entry: FileEntry, what: str) -> Path:

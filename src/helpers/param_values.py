@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from .params import ParameterError
+from .paths import REPO_ROOT, is_checkpoint_choice, repo_path
 
 _SPLITS = (1, 2, 3)
 _LEVELS = ("32", "16", "13")
@@ -115,18 +116,18 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
 
 def _check_explore(notebook: str, P: dict[str, Any]) -> None:
     """The explorer's model (zoo name or checkpoint file), first object and query."""
+    import yaml
+
     from .manifest import load_manifest
-    from .zoo import entries
 
     choice = P["model"]
-    if choice.endswith(".pt") or "/" in choice:
-        if not Path(choice).is_file():
-            raise _err(notebook, "model", "a zoo model name or an existing checkpoint (.pt) file", choice)
+    if is_checkpoint_choice(choice):
+        if not repo_path(choice).is_file():
+            raise _err(notebook, "model", "a zoo model name or an existing checkpoint (.pt) file "
+                       f"(relative paths from the repository root: {REPO_ROOT})", choice)
     else:
-        try:
-            zoo = entries()
-        except FileNotFoundError:
-            zoo = {}
+        zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"  # read directly: the zoo module pulls in training
+        zoo = (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
         if choice not in zoo:
             raise _err(notebook, "model", f"a zoo model among {sorted(zoo)} or a checkpoint (.pt) file", choice)
         if zoo[choice]["data"]["image_size"] != P["image_size"]:

@@ -12,6 +12,18 @@ from pathlib import Path
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
+def is_checkpoint_choice(choice: str) -> bool:
+    """True when a model choice names a checkpoint file (``*.pt`` or a path) rather than a zoo model."""
+    return choice.endswith(".pt") or "/" in choice or os.sep in choice
+
+
+def repo_path(path: str | os.PathLike) -> Path:
+    """``path`` itself if absolute, else relative to the repository root (where notebook parameters'
+    relative paths, such as ``out_dir``, are read from)."""
+    p = Path(path).expanduser()
+    return p if p.is_absolute() else REPO_ROOT / p
+
+
 def default_manifest() -> Path:
     """Path of the committed ``data_manifest.yaml``."""
     return REPO_ROOT / "data_manifest.yaml"

@@ -9,7 +9,9 @@ Conventions (all functions here):
 * Depth images are (H, W) arrays of the z coordinate in the camera frame (OpenCV camera), 0 where nothing was
   measured or rendered. They are turned into *distance* images (distance from the camera centre to the 3D point
   seen at each pixel, the BOP toolkit's choice) with the intrinsics ``K`` (3, 3); pixel (u, v) = (column, row)
-  back-projects through ((u - cx) / fx, (v - cy) / fy, 1), without a half-pixel offset, as in the toolkit.
+  back-projects through ((u - cx) / fx, (v - cy) / fy, 1), without a half-pixel offset, as in the toolkit
+  (this study's renderer puts pixel centres at +0.5 in its ``K``: the two differ by half a pixel's ray slope,
+  below 0.1 % of a distance at our focal lengths).
 * ``delta`` (visibility tolerance) and ``tau`` (misalignment tolerance) are in the depth images' unit; the paper
   and BOP use 15 mm and 20 mm on T-LESS, so pass 15 and 20 for millimetre depth, 0.015 and 0.020 for metres.
 * Visibility ("bop19" mode): a rendered pixel is visible where it is not more than ``delta`` behind the test
@@ -60,6 +62,11 @@ def vsd_error(depth_est: np.ndarray, depth_gt: np.ndarray, depth_test: np.ndarra
     shapes = {np.shape(depth_est), np.shape(depth_gt), np.shape(depth_test)}
     if len(shapes) != 1:
         raise ValueError(f"vsd_error: depth images differ in size: {sorted(shapes)}")
+    seen = np.asarray(depth_gt)[np.asarray(depth_gt) > 0]
+    if seen.size and tau > 0.5 * float(np.median(seen)):
+        # e.g. tau=20 (mm) with depth in metres: every pixel would count as aligned.
+        raise ValueError(f"vsd_error: tau={tau} is over half the object's median depth {float(np.median(seen)):.4g}; "
+                         "delta and tau must be in the depth images' unit (15/20 for mm, 0.015/0.02 for m)")
     d_test, d_gt, d_est = (depth_to_distance(d, K) for d in (depth_test, depth_gt, depth_est))
     vis_gt = visible_mask(d_test, d_gt, delta)
     vis_est = visible_mask(d_test, d_est, delta) | (vis_gt & (d_est > 0))
