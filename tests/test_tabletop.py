@@ -59,11 +59,11 @@ def test_viewpoints_stay_inside_the_stated_range(mug):
 def test_tabletop_labels_match_reference_renders(mug, manifest):
     """A silhouette rendered as a reference at the query's label overlaps the query's object
     mask (IoU > 0.8), and clearly better than at a rotation 40 degrees away."""
-    from helpers.datasets import _backgrounds
+    from helpers.datasets import background_photos
     from scipy.spatial.transform import Rotation
 
     turn = Rotation.from_rotvec(np.radians(40) * np.array([1.0, 0.0, 0.0])).as_matrix()  # about camera x
-    photos = _backgrounds(manifest, "test")
+    photos = background_photos(manifest, "test")
     style = query_style("linemod", crop_shift=0.0, crop_scale=0.0, n_clutter=(0, 0))
     rng = np.random.default_rng(3)
     for i in range(6):
@@ -78,9 +78,9 @@ def test_tabletop_labels_match_reference_renders(mug, manifest):
 
 @pytest.mark.gl
 def test_tabletop_scene_has_surroundings_and_leaves_references_clean(mug, manifest):
-    from helpers.datasets import _backgrounds
+    from helpers.datasets import background_photos
 
-    photos = _backgrounds(manifest, "train")
+    photos = background_photos(manifest, "train")
     ref_before, _ = render_reference(mug, np.eye(3), RC)
     img, vis, _ = render_query(mug, None, RC, query_style("linemod"), photos, np.random.default_rng(0))
     assert (img[~vis].max(axis=1) > 10).mean() > 0.9  # table and clutter around the object, not black

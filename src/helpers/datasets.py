@@ -126,7 +126,8 @@ def _worker_init(manifest_path: str, lp_threads: int | None) -> None:
     _W["backgrounds"] = {}
 
 
-def _backgrounds(manifest: Manifest, split: str) -> dict[str, np.ndarray]:
+def background_photos(manifest: Manifest, split: str) -> dict[str, np.ndarray]:
+    """The manifest's ``split`` ("train"/"test") photos, name -> (H, W, 3) uint8 RGB, checked and kept per process."""
     bgs = _W.setdefault("backgrounds", {})
     if split not in bgs:
         out = {}
@@ -161,7 +162,7 @@ def _render_chunk(spec: ViewSetSpec, out_dir: str, chunk_idx: int) -> int:
     masks = np.zeros((hi - lo, S, S), bool)
     rots = np.zeros((hi - lo, 3, 3), np.float32)
     if spec.kind == "query":
-        bgs = _backgrounds(manifest, spec.background_split)
+        bgs = background_photos(manifest, spec.background_split)
     for i in range(lo, hi):
         if spec.kind == "reference":
             imgs[i - lo], masks[i - lo] = render_reference(obj, R[i], spec.render)

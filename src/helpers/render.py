@@ -451,6 +451,24 @@ def render_query(obj: ObjectMesh, R_m2c: np.ndarray, cfg: RenderConfig, style: Q
     return _sensor(img, style, rng), vis, inplane_rotate_label(R_m2c, angle)
 
 
+def crop_view(color: np.ndarray, visible: np.ndarray, cfg: RenderConfig, style: QueryStyle,
+              rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Crop a full-frame view (R, R, 3) uint8 to the visible object's square box (jittered by the style,
+    with its context margin, zero padding outside the frame): float32 image (C, C, 3) and mask (C, C) bool,
+    C = :func:`output_side`. The sensor's blur and noise are not applied yet."""
+    cx, cy, side = _jittered_box(visible, cfg, style, rng)
+    S = output_side(cfg, style)
+    M = crop_affine(cx, cy, side * style.context, S)
+    img = cv2.warpAffine(color, M, (S, S), flags=cv2.INTER_AREA, borderValue=0).astype(np.float32)
+    vis = cv2.warpAffine(visible.astype(np.uint8) * 255, M, (S, S), flags=cv2.INTER_LINEAR) > 127
+    return img, vis
+
+
+def apply_sensor(img: np.ndarray, style: QueryStyle, rng: np.random.Generator) -> np.ndarray:
+    """The style's sensor blur and noise on a float image (C, C, 3); uint8 out."""
+    return _sensor(img, style, rng)
+
+
 def _render_tabletop_query(obj: ObjectMesh, cfg: RenderConfig, style: QueryStyle, backgrounds,
                            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tabletop view (:func:`helpers.tabletop.render_tabletop`), cropped to the visible object's
@@ -461,11 +479,7 @@ def _render_tabletop_query(obj: ObjectMesh, cfg: RenderConfig, style: QueryStyle
     color, _, _, visible, vp = render_tabletop(obj, cfg, style, photos, rng)
     if not visible.any():
         raise ValueError(f"object {obj.name!r}: a tabletop view shows none of the object (clutter in front?)")
-    cx, cy, side = _jittered_box(visible, cfg, style, rng)
-    S = output_side(cfg, style)
-    M = crop_affine(cx, cy, side * style.context, S)
-    img = cv2.warpAffine(color, M, (S, S), flags=cv2.INTER_AREA, borderValue=0).astype(np.float32)
-    vis = cv2.warpAffine(visible.astype(np.uint8) * 255, M, (S, S), flags=cv2.INTER_LINEAR) > 127
+    img, vis = crop_view(color, visible, cfg, style, rng)
     if rng.random() < style.occlusion:
         photos_l = _photos(photos)
         tex = background_patch(photos_l[int(rng.integers(len(photos_l)))], S, rng)

@@ -178,14 +178,51 @@ def _clutter_meshes(diameter: float) -> list:
     return out
 
 
-def _scene_nodes(obj: ObjectMesh, cfg, photos: dict[str, np.ndarray], contrast: float):
+def _family_meshes(family: "ClutterFamily", diameter: float) -> list:
+    """A clutter family's meshes as pyrender meshes: each resting on z = 0 and scaled to ``diameter``
+    (the node's per-view scale then applies the family's size range)."""
+    import pyrender
+
+    out = []
+    for m in family.meshes:
+        m = m.copy()
+        m.apply_translation(-m.bounds.mean(axis=0))
+        m.apply_scale(diameter / float(np.linalg.norm(m.extents)))
+        m.apply_translation([0, 0, -m.bounds[0, 2]])
+        mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=[*family.color, 1.0], metallicFactor=0.0,
+                                                 roughnessFactor=0.7)
+        out.append(pyrender.Mesh.from_trimesh(m, material=mat, smooth=False))
+    return out
+
+
+@dataclass(frozen=True)
+class ClutterFamily:
+    """Clutter other than the default primitives, e.g. other parts of the same family (T-LESS-like scenes).
+
+    Attributes:
+        key: names the family (scenes keep one pool per key).
+        meshes: the clutter meshes (any units; each is scaled to the object's diameter, then by the style's
+            ``clutter_size``).
+        color: RGB in [0, 1] of every clutter mesh (jittered per view by the style's ``color_scale``).
+        azimuth_deg: (min, max) clutter azimuth from the camera's, degrees: (70, 290) keeps it beside or
+            behind the object; (0, 360) lets it stand in front and hide part of it.
+    """
+
+    key: str
+    meshes: tuple
+    color: tuple[float, float, float]
+    azimuth_deg: tuple[float, float] = (0.0, 360.0)
+
+
+def _scene_nodes(obj: ObjectMesh, cfg, photos: dict[str, np.ndarray], contrast: float,
+                 family: ClutterFamily | None = None):
     """The object's scene from :mod:`helpers.render` with a table plane per photo and the
     clutter pool added once (all hidden until a view shows them)."""
     from .render import _scene
 
     base = _scene(obj, cfg)
     scene = base[0]
-    extra = _TT["scenes"].setdefault(id(scene), {"tables": {}, "clutter": None})
+    extra = _TT["scenes"].setdefault(id(scene), {"tables": {}, "clutter": None, "families": {}})
     for name, photo in photos.items():
         if (name, contrast) not in extra["tables"]:
             node = scene.add(_table_mesh(table_texture(photo, contrast), obj.diameter), pose=np.eye(4))
@@ -194,6 +231,10 @@ def _scene_nodes(obj: ObjectMesh, cfg, photos: dict[str, np.ndarray], contrast: 
     if extra["clutter"] is None:
         extra["clutter"] = [scene.add(m, pose=np.eye(4)) for m in _clutter_meshes(obj.diameter)]
         for n in extra["clutter"]:
+            n.mesh.is_visible = False
+    if family is not None and family.key not in extra["families"]:
+        extra["families"][family.key] = [scene.add(m, pose=np.eye(4)) for m in _family_meshes(family, obj.diameter)]
+        for n in extra["families"][family.key]:
             n.mesh.is_visible = False
     return base, extra
 
@@ -212,8 +253,9 @@ def _rz(a: float) -> np.ndarray:
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
 
 
-def render_tabletop(obj: ObjectMesh, cfg, style, photos: dict[str, np.ndarray],
-                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Viewpoint]:
+def render_tabletop(obj: ObjectMesh, cfg, style, photos: dict[str, np.ndarray], rng: np.random.Generator,
+                    family: ClutterFamily | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Viewpoint]:
     """Render one tabletop view (full frame, before cropping).
 
     Args:
@@ -221,6 +263,8 @@ def render_tabletop(obj: ObjectMesh, cfg, style, photos: dict[str, np.ndarray],
         style: :class:`helpers.render.QueryStyle` (tabletop fields: elevation, roll,
             clutter count/size/distance, light).
         photos: name -> (H, W, 3) uint8 table textures; one is drawn per view.
+        family: clutter drawn from these meshes instead of the default primitives (None: the
+            LineMOD-like scenes, unchanged).
 
     Returns:
         colour (R, R, 3) uint8, depth (R, R) float32 metres, full object silhouette
@@ -231,7 +275,8 @@ def render_tabletop(obj: ObjectMesh, cfg, style, photos: dict[str, np.ndarray],
     from .render import _frame_with_minus_z, _renderer
 
     vp = sample_viewpoint(obj, rng, style.elevation_deg, style.roll_deg)
-    (scene, obj_node, light, light_node, (pm, base_colors)), extra = _scene_nodes(obj, cfg, photos, style.table_contrast)
+    (scene, obj_node, light, light_node, (pm, base_colors)), extra = _scene_nodes(obj, cfg, photos,
+                                                                                   style.table_contrast, family)
     d = obj.diameter
     centre = np.array([0.0, 0.0, cfg.distance_diameters * d])  # model origin, camera frame
 
@@ -246,19 +291,23 @@ def render_tabletop(obj: ObjectMesh, cfg, style, photos: dict[str, np.ndarray],
     scene.set_pose(table, pose4(vp.R_w2c @ _rz(rng.uniform(0, 2 * math.pi)), to_cam(off)))
 
     n_clutter = int(rng.integers(style.n_clutter[0], style.n_clutter[1] + 1))
-    pool = extra["clutter"]
+    pool = extra["clutter"] if family is None else extra["families"][family.key]
+    # Default: beside or behind the object as seen from the camera (at least 70 deg away from the
+    # camera's azimuth), so clutter seldom stands between the camera and the object.
+    az_lo, az_hi = (70.0, 290.0) if family is None else family.azimuth_deg
     picks = rng.permutation(len(pool))[:n_clutter]
     shown = []
     for j in picks:
         node = pool[int(j)]
         s = float(rng.uniform(*style.clutter_size))
-        # Beside or behind the object as seen from the camera: at least 70 deg away from the
-        # camera's azimuth, so clutter seldom stands between the camera and the object.
-        phi = math.radians(vp.azimuth_deg) + math.radians(rng.uniform(70, 290))
+        phi = math.radians(vp.azimuth_deg) + math.radians(rng.uniform(az_lo, az_hi))
         r = max(float(rng.uniform(*style.clutter_distance)), 0.5 + 0.65 * s) * d
         R = vp.R_w2c @ _rz(rng.uniform(0, 2 * math.pi))
         node.mesh.is_visible = True
-        node.mesh.primitives[0].material.baseColorFactor = np.array([*rng.uniform(0.05, 1.0, 3), 1.0], np.float32)
+        rgb = rng.uniform(0.05, 1.0, 3)
+        if family is not None:  # the family's colour, jittered like the object's
+            rgb = np.clip(np.asarray(family.color) * (1 + rng.uniform(-style.color_scale, style.color_scale, 3)), 0, 1)
+        node.mesh.primitives[0].material.baseColorFactor = np.array([*rgb, 1.0], np.float32)
         P = pose4(R * s, to_cam(np.array([r * math.cos(phi), r * math.sin(phi), -vp.height])))
         scene.set_pose(node, P)
         shown.append(node)

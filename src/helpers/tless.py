@@ -1,0 +1,205 @@
+"""The T-LESS-like cross-dataset set: generated textureless parts (:mod:`helpers.parts`) on a table among
+other parts of the same family, with the depth image of every query (for err_vsd, :mod:`helpers.vsd`).
+
+Protocol (the paper's Table 3, adapted): a model trained on the LineMOD-like objects only retrieves each query
+among the references of ALL parts (the category is retrieved, not given; the same rule for HOG and Global).
+A query is correct when err_vsd <= 0.3 with the estimated rotation and the ground-truth translation; Rota. Acc.
+at 30 deg (symmetries included) is reported beside it.
+
+Scenes: a part rests on a photo-textured table in one of its stable poses; 2-4 other parts of the family stand
+around it, anywhere in azimuth (so some stand in front and hide part of it); the camera looks from the upper
+hemisphere (elevation 15-75 deg). A view is kept only if at least ``min_visible`` of the part's silhouette is
+visible. Each query stores its crop, its visible mask, its label ``R_m2c`` and the full-frame depth (metres) of
+the scene; the part sits at ``t = (0, 0, distance_diameters * diameter)`` in the camera frame with the render
+intrinsics ``K`` of :meth:`helpers.render.RenderConfig.intrinsics` (the references' camera).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from .datasets import background_photos
+from .fileio import atomic_write_bytes, atomic_write_json, check_sha256, sha256_file, stable_hash
+from .locks import entry_lock
+from .manifest import Manifest, load_manifest
+from .meshes import ObjectMesh
+from .parts import load_part
+from .paths import cache_dir
+from .render import RenderConfig, apply_sensor, crop_view, query_style, render_raw, render_reference
+from .rotations import haar_uniform, symmetric_geodesic_deg
+from .tabletop import ClutterFamily, render_tabletop
+from .views import ObjectViews
+from .vsd import vsd_error
+
+#: The T-LESS-like query style. Calibrated with HOG nearest neighbour only (never a trained model); see
+#: docs/method.md for the calibration line. Parts are grey: no colour jitter beyond the lighting's.
+TLESS_STYLE = dict(n_clutter=(2, 4), clutter_size=(0.7, 1.1), clutter_distance=(0.75, 1.3), color_scale=0.08)
+#: Grey of every part (T-LESS parts are grey plastic).
+PART_GREY = (0.62, 0.62, 0.6)
+#: VSD tolerances of the paper and BOP on T-LESS, metres (our depth unit).
+VSD_DELTA_M, VSD_TAU_M, VSD_THRESHOLD = 0.015, 0.020, 0.3
+SET_VERSION = 1
+
+
+@dataclass(frozen=True)
+class TlessConfig:
+    """Sizes of the T-LESS-like set.
+
+    Attributes:
+        image_size, render_size: crop and internal render sides, pixels (as the LineMOD-like benchmark's).
+        n_references: references per part (Haar-uniform rotations shared by all parts).
+        n_queries: test queries per part.
+        min_visible: least visible share of a query part's silhouette.
+        seed: rotations, scenes and sensor noise.
+    """
+
+    image_size: int = 64
+    render_size: int = 96
+    n_references: int = 512
+    n_queries: int = 50
+    min_visible: float = 0.5
+    seed: int = 0
+
+    def render(self) -> RenderConfig:
+        return RenderConfig(size=self.image_size, render_size=self.render_size)
+
+
+@dataclass
+class TlessSet:
+    """The rendered set.
+
+    Attributes:
+        cfg: its configuration.
+        parts: name -> ObjectMesh (metres, real size).
+        refs: name -> references (n_references views at shared rotations).
+        queries: name -> query crops with labels and symmetries.
+        depth: name -> (n_queries, R, R) float32 scene depth, metres (R = render_size).
+    """
+
+    cfg: TlessConfig
+    parts: dict[str, ObjectMesh]
+    refs: dict[str, ObjectViews]
+    queries: dict[str, ObjectViews]
+    depth: dict[str, np.ndarray]
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.parts)
+
+
+def _key(cfg: TlessConfig, m: Manifest) -> str:
+    return stable_hash({"v": SET_VERSION, "cfg": asdict(cfg), "style": TLESS_STYLE, "grey": PART_GREY,
+                        "parts": [p.sha256 for p in m.parts.items],
+                        "photos": [b.file.sha256 for b in m.backgrounds if b.split == "test"]})
+
+
+def _render_queries(obj: ObjectMesh, family: ClutterFamily, cfg: TlessConfig, photos: dict, rng) -> dict:
+    style = query_style("linemod", **TLESS_STYLE)
+    rc = cfg.render()
+    out = {"images": [], "masks": [], "rotations": [], "depth": []}
+    tries = 0
+    while len(out["images"]) < cfg.n_queries:
+        tries += 1
+        if tries > 20 * cfg.n_queries:
+            raise RuntimeError(f"part {obj.name!r}: fewer than {cfg.n_queries} views with >= {cfg.min_visible:.0%} "
+                               f"visible in {tries} tries; lower min_visible or the clutter")
+        color, depth, full, visible, vp = render_tabletop(obj, rc, style, photos, rng, family)
+        if visible.sum() < cfg.min_visible * max(1, full.sum()):
+            continue
+        img, vis = crop_view(color, visible, rc, style, rng)
+        out["images"].append(apply_sensor(img, style, rng))
+        out["masks"].append(vis)
+        out["rotations"].append(vp.R_m2c.astype(np.float32))
+        out["depth"].append(depth.astype(np.float32))
+    return {k: np.stack(v) for k, v in out.items()}
+
+
+def _build(d: Path, cfg: TlessConfig, m: Manifest, parts: dict[str, ObjectMesh], progress: bool) -> None:
+    photos = background_photos(m, "test")
+    R_refs = haar_uniform(cfg.n_references, seed=cfg.seed)
+    sums = {}
+    names = list(parts)
+    bar = tqdm(total=len(names) * (cfg.n_references + cfg.n_queries), desc="T-LESS-like set", unit="view",
+               disable=not progress)
+    for i, name in enumerate(names):
+        obj = parts[name]
+        refs = [render_reference(obj, R, cfg.render())[0] for R in R_refs]
+        bar.update(cfg.n_references)
+        others = tuple(parts[n].mesh for n in names if n != name)
+        family = ClutterFamily(f"tless-{name}", others, PART_GREY)
+        q = _render_queries(obj, family, cfg, photos, np.random.default_rng([cfg.seed, 31337, i]))
+        bar.update(cfg.n_queries)
+        arrays = {"refs": np.stack(refs), "images": q["images"], "masks": q["masks"], "rotations": q["rotations"],
+                  "depth": q["depth"].astype(np.float16)}
+        for k, a in arrays.items():
+            f = d / f"{name}.{k}.npy"
+            atomic_write_bytes(f, _npy_bytes(a))
+            sums[f.name] = sha256_file(f)
+    bar.close()
+    atomic_write_json(d / "meta.json", {"cfg": asdict(cfg), "style": TLESS_STYLE, "parts": names,
+                                        "ref_seed": cfg.seed, "sha256": sums})
+
+
+def _npy_bytes(a: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, a)
+    return buf.getvalue()
+
+
+def load_tless(cfg: TlessConfig = TlessConfig(), cache: str | os.PathLike | None = None,
+               manifest: Manifest | None = None, progress: bool = True) -> TlessSet:
+    """The T-LESS-like set of ``cfg``: rendered once into ``<cache>/tless/<key>`` (under the entry's lock,
+    files checksummed in meta.json), then loaded."""
+    m = manifest or load_manifest()
+    parts = {p.name: load_part(p.name, m, cache, PART_GREY) for p in m.parts.items}
+    d = cache_dir(cache) / "tless" / _key(cfg, m)
+    if not (d / "meta.json").exists():
+        with entry_lock(d, f"T-LESS-like set {d.name}"):
+            if not (d / "meta.json").exists():
+                d.mkdir(parents=True, exist_ok=True)
+                _build(d, cfg, m, parts, progress)
+    meta = json.loads((d / "meta.json").read_text())
+    R_refs = haar_uniform(cfg.n_references, seed=meta["ref_seed"]).astype(np.float32)
+    refs, queries, depth = {}, {}, {}
+    for name, obj in parts.items():
+        arr = {k: _load_checked(d / f"{name}.{k}.npy", meta["sha256"]) for k in
+               ("refs", "images", "masks", "rotations", "depth")}
+        refs[name] = ObjectViews(name, arr["refs"], R_refs, None, "reference", obj.symmetries)
+        queries[name] = ObjectViews(name, arr["images"], arr["rotations"], arr["masks"], "query", obj.symmetries)
+        depth[name] = arr["depth"]
+    return TlessSet(cfg, parts, refs, queries, depth)
+
+
+def _load_checked(f: Path, sums: dict) -> np.ndarray:
+    check_sha256(f, sums.get(f.name, ""), f.parent / "meta.json",
+                 f"delete {f.parent} (the next run renders it again)")
+    return np.load(f)
+
+
+def vsd_errors(tset: TlessSet, name: str, R_est: np.ndarray) -> np.ndarray:
+    """(N,) err_vsd of estimated rotations (N, 3, 3) for part ``name``'s queries: depth renders at the
+    estimated and true rotation with the true translation, against the scene's depth (metres)."""
+    obj, rc = tset.parts[name], tset.cfg.render()
+    K = rc.intrinsics()
+    R_gt = tset.queries[name].rotations
+    if len(R_est) != len(R_gt):
+        raise ValueError(f"vsd_errors: {len(R_est)} estimates for {len(R_gt)} queries of {name!r}")
+    out = np.empty(len(R_gt))
+    for i, (Re, Rg) in enumerate(zip(R_est, R_gt)):
+        d_est = render_raw(obj, np.asarray(Re, np.float64), rc)[1]
+        d_gt = render_raw(obj, np.asarray(Rg, np.float64), rc)[1]
+        out[i] = vsd_error(d_est, d_gt, tset.depth[name][i].astype(np.float32), K, VSD_DELTA_M, VSD_TAU_M)
+    return out
+
+
+def rotation_errors(tset: TlessSet, name: str, R_est: np.ndarray) -> np.ndarray:
+    """(N,) symmetric geodesic error (degrees) of estimated rotations for part ``name``'s queries."""
+    q = tset.queries[name]
+    return symmetric_geodesic_deg(np.asarray(R_est, np.float64), q.rotations.astype(np.float64), q.symmetries)
