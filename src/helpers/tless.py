@@ -80,7 +80,8 @@ class TlessSet:
         parts: name -> ObjectMesh (metres, real size).
         refs: name -> references (n_references views at shared rotations).
         queries: name -> query crops with labels and symmetries.
-        depth: name -> (n_queries, R, R) float32 scene depth, metres (R = render_size).
+        depth: name -> (n_queries, R, R) float16 scene depth, metres (R = render_size).
+        key: the cache key of the rendered set (its folder's name).
     """
 
     cfg: TlessConfig
@@ -88,6 +89,7 @@ class TlessSet:
     refs: dict[str, ObjectViews]
     queries: dict[str, ObjectViews]
     depth: dict[str, np.ndarray]
+    key: str = ""
 
     @property
     def names(self) -> list[str]:
@@ -174,7 +176,12 @@ def load_tless(cfg: TlessConfig = TlessConfig(), cache: str | os.PathLike | None
         refs[name] = ObjectViews(name, arr["refs"], R_refs, None, "reference", obj.symmetries)
         queries[name] = ObjectViews(name, arr["images"], arr["rotations"], arr["masks"], "query", obj.symmetries)
         depth[name] = arr["depth"]
-    return TlessSet(cfg, parts, refs, queries, depth)
+    return TlessSet(cfg, parts, refs, queries, depth, d.name)
+
+
+def set_key(tset: TlessSet) -> str:
+    """The set's cache key (names its reference features in the feature cache)."""
+    return tset.key
 
 
 def _load_checked(f: Path, sums: dict) -> np.ndarray:
@@ -183,19 +190,20 @@ def _load_checked(f: Path, sums: dict) -> np.ndarray:
     return np.load(f)
 
 
-def vsd_errors(tset: TlessSet, name: str, R_est: np.ndarray) -> np.ndarray:
-    """(N,) err_vsd of estimated rotations (N, 3, 3) for part ``name``'s queries: depth renders at the
-    estimated and true rotation with the true translation, against the scene's depth (metres)."""
+def vsd_errors(tset: TlessSet, name: str, R_est: np.ndarray, indices: list[int] | None = None) -> np.ndarray:
+    """(N,) err_vsd of estimated rotations (N, 3, 3) for part ``name``'s queries ``indices`` (default: all, in
+    order): depth renders at the estimated and true rotation with the true translation, against the scene's
+    depth (metres; tolerances VSD_DELTA_M, VSD_TAU_M)."""
     obj, rc = tset.parts[name], tset.cfg.render()
     K = rc.intrinsics()
-    R_gt = tset.queries[name].rotations
-    if len(R_est) != len(R_gt):
-        raise ValueError(f"vsd_errors: {len(R_est)} estimates for {len(R_gt)} queries of {name!r}")
-    out = np.empty(len(R_gt))
-    for i, (Re, Rg) in enumerate(zip(R_est, R_gt)):
+    idx = list(range(len(tset.queries[name]))) if indices is None else list(indices)
+    if len(R_est) != len(idx):
+        raise ValueError(f"vsd_errors: {len(R_est)} estimates for {len(idx)} queries of {name!r}")
+    out = np.empty(len(idx))
+    for k, (Re, i) in enumerate(zip(R_est, idx)):
         d_est = render_raw(obj, np.asarray(Re, np.float64), rc)[1]
-        d_gt = render_raw(obj, np.asarray(Rg, np.float64), rc)[1]
-        out[i] = vsd_error(d_est, d_gt, tset.depth[name][i].astype(np.float32), K, VSD_DELTA_M, VSD_TAU_M)
+        d_gt = render_raw(obj, tset.queries[name].rotations[i].astype(np.float64), rc)[1]
+        out[k] = vsd_error(d_est, d_gt, tset.depth[name][i].astype(np.float32), K, VSD_DELTA_M, VSD_TAU_M)
     return out
 
 

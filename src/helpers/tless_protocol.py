@@ -1,0 +1,70 @@
+"""Scoring a model (or HOG) on the T-LESS-like set (:mod:`helpers.tless`) as in the paper's Table 3.
+
+Every query is retrieved by greedy search among the references of ALL parts (category retrieved, not given;
+the same rule for every method). Per query: the predicted part, the rotation error under the true part's
+symmetries, and err_vsd (estimated rotation, true translation; 1.0 when the predicted part is another one,
+whose pose cannot be right). ``vsd_ok`` = right part and err_vsd <= 0.3 (the paper's T-LESS Rota. Acc.);
+``rot_ok`` = right part and rotation error < 30 deg. Accuracies average per part, then over parts.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from tqdm.auto import tqdm
+
+from .bank import ReferenceBank
+from .device import resolve_device
+from .features import FeatureCache, encode_batch, model_fingerprint
+from .metrics import summarise_queries
+from .paths import cache_dir
+from .study import evaluate
+from .tless import VSD_THRESHOLD, TlessSet, set_key, vsd_errors
+
+
+def tless_bank(model: Any, tset: TlessSet, device: str = "auto", cache: str | os.PathLike | None = None,
+               progress: bool = True) -> ReferenceBank:
+    """Reference features of every part (cached float16, keyed by the set and the model's weights)."""
+    dev = resolve_device(device)
+    fc = FeatureCache(cache_dir(cache) / "features")
+    mkey = model_fingerprint(model)
+    feats = [fc.get_or_build(model, mkey, tset.refs[n], f"tless-{set_key(tset)}-{n}", batch=encode_batch(dev),
+                             device=dev, progress=progress) for n in tset.names]
+    return ReferenceBank(feats, tset.refs[tset.names[0]].rotations, tset.names, k_ac=1)
+
+
+def evaluate_tless(model: Any, tset: TlessSet, device: str = "auto", cache: str | os.PathLike | None = None,
+                   progress: bool = True) -> dict[str, Any]:
+    """Retrieve every query of the set and score it.
+
+    Returns:
+        {"per_query": DataFrame (split, obj, pred_obj, query_id, class_ok, err_deg, rot_ok, vsd, vsd_ok),
+         "per_object": DataFrame, "means": {"class_acc", "rot_acc", "vsd_acc", "median_vsd"}}.
+    """
+    bank = tless_bank(model, tset, device, cache, progress)
+    res = evaluate(model, bank, tset.queries, method="greedy", device=device, progress=progress)
+    pq = res["per_query"].copy()
+    R_est = {r.query_id: r.R_est for r in res["records"]}
+    vsd = np.ones(len(pq))
+    for name in tqdm(tset.names, desc="err_vsd", disable=not progress):
+        rows = np.flatnonzero((pq["obj"] == name).to_numpy())
+        ok = rows[pq["class_ok"].to_numpy()[rows]]
+        if len(ok):
+            idx = [int(q.rsplit(":", 1)[1]) for q in pq["query_id"].iloc[ok]]
+            errs = vsd_errors(tset, name, np.stack([R_est[q] for q in pq["query_id"].iloc[ok]]), indices=idx)
+            vsd[ok] = errs
+    pq["vsd"] = vsd
+    pq["vsd_ok"] = pq["class_ok"] & (pq["vsd"] <= VSD_THRESHOLD)
+    pq.insert(0, "split", "tless")
+    per_object, means = summarise_queries(pq)
+    per_object["vsd_acc"] = 100.0 * pq.groupby("obj")["vsd_ok"].mean().reindex(per_object.index)
+    means = {**means, "vsd_acc": float(per_object["vsd_acc"].mean()), "median_vsd": float(pq["vsd"].median())}
+    return {"per_query": pq, "per_object": per_object, "means": means}
+
+
+def same_queries(a: pd.DataFrame, b: pd.DataFrame) -> bool:
+    """True when two per-query tables hold the same queries in the same order (pairing is valid)."""
+    return list(a["query_id"]) == list(b["query_id"]) and list(a["obj"]) == list(b["obj"])
