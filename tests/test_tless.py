@@ -72,3 +72,26 @@ def test_hog_on_the_set_reports_vsd_and_rotation_accuracy(tmp_path):
     assert ((pq["vsd"] >= 0) & (pq["vsd"] <= 1)).all()
     assert (pq.loc[~pq["class_ok"], "vsd"] == 1.0).all() and not pq.loc[~pq["class_ok"], "vsd_ok"].any()
     assert 0 <= res["means"]["vsd_acc"] <= 100 and res["means"]["n_objects"] == len(ts.names)
+
+
+def _tless_parameters(**over):
+    from helpers.params import declared_parameters, notebook_path
+
+    P = declared_parameters(notebook_path("09_tless"))
+    P.update(over)
+    return P
+
+
+@pytest.mark.parametrize("over, match", [
+    ({"model": "no-such-model"}, r"'model' expects a zoo model among"),
+    ({"global_model": "nope/best.pt"}, r"'global_model' expects a zoo model name or an existing checkpoint"),
+    ({"min_visible": 0.0}, r"'min_visible' expects a share in \(0, 1\]"),
+    ({"n_queries": 0}, r"'n_queries' expects an int >= 1"),
+])
+def test_tless_parameters_are_checked_before_any_work(over, match):
+    from helpers.param_values import check_values
+    from helpers.params import ParameterError
+
+    with pytest.raises(ParameterError, match=match):
+        check_values("09_tless", _tless_parameters(**over))
+    check_values("09_tless", _tless_parameters())

@@ -27,7 +27,7 @@ _MIN_INT = {
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
     "occluded_queries": 0, "eval_refs": 0,
-    "n_seeds": 1, "test_queries": 0, "query": 0, "top_k": 1,
+    "n_seeds": 1, "test_queries": 0, "query": 0, "top_k": 1, "n_queries": 1,
 }
 _CHOICES = {
     "lr_schedule": ("step", "cosine"),
@@ -111,33 +111,48 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
             raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
     if notebook.startswith("10"):
         _check_explore(notebook, P)
+    if notebook.startswith("09"):
+        _check_tless(notebook, P)
     _check_configs(notebook, P)
+
+
+def _check_model_choice(notebook: str, name: str, choice: str, image_size: int) -> None:
+    """A model parameter: a zoo model's name taking ``image_size`` px crops, or an existing checkpoint file."""
+    import yaml
+
+    if is_checkpoint_choice(choice):
+        if not repo_path(choice).is_file():
+            raise _err(notebook, name, "a zoo model name or an existing checkpoint (.pt) file "
+                       f"(relative paths from the repository root: {REPO_ROOT})", choice)
+        return
+    zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"  # read directly: the zoo module pulls in training
+    zoo = (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
+    if choice not in zoo:
+        raise _err(notebook, name, f"a zoo model among {sorted(zoo)} or a checkpoint (.pt) file", choice)
+    if zoo[choice]["data"]["image_size"] != image_size:
+        raise _err(notebook, name, f"a model taking image_size={image_size} px crops "
+                   f"({choice} takes {zoo[choice]['data']['image_size']})", choice)
 
 
 def _check_explore(notebook: str, P: dict[str, Any]) -> None:
     """The explorer's model (zoo name or checkpoint file), first object and query."""
-    import yaml
-
     from .manifest import load_manifest
 
-    choice = P["model"]
-    if is_checkpoint_choice(choice):
-        if not repo_path(choice).is_file():
-            raise _err(notebook, "model", "a zoo model name or an existing checkpoint (.pt) file "
-                       f"(relative paths from the repository root: {REPO_ROOT})", choice)
-    else:
-        zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"  # read directly: the zoo module pulls in training
-        zoo = (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
-        if choice not in zoo:
-            raise _err(notebook, "model", f"a zoo model among {sorted(zoo)} or a checkpoint (.pt) file", choice)
-        if zoo[choice]["data"]["image_size"] != P["image_size"]:
-            raise _err(notebook, "model", f"a model taking image_size={P['image_size']} px crops "
-                       f"({choice} takes {zoo[choice]['data']['image_size']})", choice)
+    _check_model_choice(notebook, "model", P["model"], P["image_size"])
     objects = load_manifest().seen_objects(0)
     if P["object_name"] and P["object_name"] not in objects:
         raise _err(notebook, "object_name", f"'' or a benchmark object among {objects}", P["object_name"])
     if P["query"] >= P["n_test_queries"]:
         raise _err(notebook, "query", f"an index below n_test_queries={P['n_test_queries']}", P["query"])
+
+
+def _check_tless(notebook: str, P: dict[str, Any]) -> None:
+    """The T-LESS-like notebook's models and set sizes."""
+    _check_model_choice(notebook, "model", P["model"], P["image_size"])
+    if P["global_model"]:
+        _check_model_choice(notebook, "global_model", P["global_model"], P["image_size"])
+    if not 0.0 < P["min_visible"] <= 1.0:
+        raise _err(notebook, "min_visible", "a share in (0, 1]", P["min_visible"])
 
 
 def _check_variants(notebook: str, variants: list) -> None:

@@ -16,7 +16,7 @@ import pandas as pd
 from . import paper
 from .fileio import atomic_write_text
 from .paths import REPO_ROOT
-from .claims import HOG_BAND, accuracy_ci, build_claims, write_claims
+from .claims import HOG_BAND, TLESS_HOG_BAND, accuracy_ci, build_claims, write_claims
 from .runinfo import git_revision
 
 
@@ -84,6 +84,7 @@ def build_report(preset: str, root: Path | None = None) -> Path:
     lines += _fast(base / "07_fast_vs_greedy")
     lines += _ablation(base / "08_components", "Components (paper Table 5)", "components.png",
                        "neither 85.91 < weighted loss 87.14 < local norm 89.25 < both 89.55 (split #1 unseen)")
+    lines += _tless(base / "09_tless")
     out = base / "REPORT.md"
     atomic_write_text(out, "\n".join(lines) + "\n")
     return out
@@ -314,3 +315,19 @@ def _c2f_selection_lines(m: dict) -> list[str]:
             f"them; bar {100 * sel['min_agreement']:.0f} % {'met' if c['met'] else 'NOT met: most agreeing kept'}; "
             f"{c['mean_comparisons']:.0f} pair scores/query)"
             for fam, c in sorted((sel.get("chosen") or {}).items(), key=lambda kv: kv[0] != "one cut")]  # one cut first
+
+
+def _tless(d: Path) -> list[str]:
+    m = _load(d / "metrics.json")
+    if not m:
+        return ["## 9 · T-LESS-like set", "", "_not run_", ""]
+    t = pd.DataFrame(m["table"])
+    lo, hi = TLESS_HOG_BAND
+    hog = m.get("hog_calibration", {})
+    out = ["## 9 · T-LESS-like set (paper Table 3)", "", m["protocol"]["summary"], "", _md(t), "",
+           "Paper (T-LESS, err_vsd <= 0.3): " + ", ".join(f"{k} {v}" for k, v in paper.TLESS_TABLE3.items()) + ".", ""]
+    if hog:
+        out += [f"**Calibration** (a method nobody trains): HOG scores {_fmt(hog['vsd_acc'])} % VSD accuracy "
+                f"[{_fmt(hog['ci95'][0])}, {_fmt(hog['ci95'][1])}] (paper's HOG on T-LESS: {paper.TLESS_TABLE3['HOG']}); "
+                f"target band {lo:.0f}-{hi:.0f} %: {_yes(lo <= hog['vsd_acc'] <= hi)}.", ""]
+    return out + ["![T-LESS-like bars](09_tless/tless_bars.png)", "", "![examples](09_tless/examples.png)", ""]

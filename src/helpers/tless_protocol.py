@@ -42,7 +42,8 @@ def evaluate_tless(model: Any, tset: TlessSet, device: str = "auto", cache: str 
 
     Returns:
         {"per_query": DataFrame (split, obj, pred_obj, query_id, class_ok, err_deg, rot_ok, vsd, vsd_ok),
-         "per_object": DataFrame, "means": {"class_acc", "rot_acc", "vsd_acc", "median_vsd"}}.
+         "per_object": DataFrame, "means": {"class_acc", "rot_acc", "vsd_acc", "median_vsd"},
+         "records": the retrieval's records (R_est per query)}.
     """
     bank = tless_bank(model, tset, device, cache, progress)
     res = evaluate(model, bank, tset.queries, method="greedy", device=device, progress=progress)
@@ -62,9 +63,53 @@ def evaluate_tless(model: Any, tset: TlessSet, device: str = "auto", cache: str 
     per_object, means = summarise_queries(pq)
     per_object["vsd_acc"] = 100.0 * pq.groupby("obj")["vsd_ok"].mean().reindex(per_object.index)
     means = {**means, "vsd_acc": float(per_object["vsd_acc"].mean()), "median_vsd": float(pq["vsd"].median())}
-    return {"per_query": pq, "per_object": per_object, "means": means}
+    return {"per_query": pq, "per_object": per_object, "means": means, "records": res["records"]}
 
 
 def same_queries(a: pd.DataFrame, b: pd.DataFrame) -> bool:
     """True when two per-query tables hold the same queries in the same order (pairing is valid)."""
     return list(a["query_id"]) == list(b["query_id"]) and list(a["obj"]) == list(b["obj"])
+
+
+def tless_table(results: dict[str, dict]) -> pd.DataFrame:
+    """One row per method: Class. Acc., Rota. Acc. (< 30 deg) and VSD accuracy (%) with 95 % intervals
+    (queries resampled within parts), the paper's T-LESS number where it has one."""
+    from . import paper
+    from .claims import accuracy_ci
+
+    rows = []
+    for label, res in results.items():
+        pq = res["per_query"]
+        row = {"method": label}
+        for col, name in (("class_ok", "class_acc"), ("rot_ok", "rot_acc"), ("vsd_ok", "vsd_acc")):
+            v, ci = accuracy_ci(pq, col)
+            row[name], row[f"{name} ci95"] = round(v, 2), f"[{ci[0]:.1f}, {ci[1]:.1f}]"
+        row["median_vsd"] = round(float(pq["vsd"].median()), 3)
+        row["paper vsd_acc"] = paper.TLESS_TABLE3.get("Ours (paper)" if label.startswith("Ours") else label)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def examples_figure(tset: TlessSet, res: dict, path: str | os.PathLike, n: int = 8):
+    """Query | retrieved reference (the predicted part at the estimated rotation) with err_vsd, for the first
+    query of ``n`` parts; green = err_vsd <= 0.3 with the right part."""
+    from .figures import _plt, save
+
+    plt = _plt()
+    pq = res["per_query"]
+    rows = pq.groupby("obj").head(1).head(n)
+    R_est = {r.query_id: r.R_est for r in res["records"]} if "records" in res else {}
+    fig, axes = plt.subplots(2, len(rows), figsize=(1.7 * len(rows), 3.8), squeeze=False)
+    for j, (_, r) in enumerate(rows.iterrows()):
+        name, i = r["query_id"].rsplit(":", 1)
+        axes[0, j].imshow(tset.queries[name].images[int(i)])
+        axes[0, j].set_title(name, fontsize=6)
+        refs = tset.refs[r["pred_obj"]]
+        k = int(np.argmax(np.einsum("nij,ij->n", refs.rotations.astype(np.float64), R_est[r["query_id"]])))
+        axes[1, j].imshow(refs.images[k])
+        axes[1, j].set_title(f"→ {r['pred_obj']}\nvsd {r['vsd']:.2f}", fontsize=6,
+                             color="green" if r["vsd_ok"] else "red")
+        for a in axes[:, j]:
+            a.set_xticks([])
+            a.set_yticks([])
+    return save(fig, path)
