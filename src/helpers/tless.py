@@ -19,7 +19,7 @@ from __future__ import annotations
 import io
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +45,9 @@ TLESS_STYLE = dict(n_clutter=(2, 4), clutter_size=(0.7, 1.1), clutter_distance=(
 PART_GREY = (0.62, 0.62, 0.6)
 #: VSD tolerances of the paper and BOP on T-LESS, metres (our depth unit).
 VSD_DELTA_M, VSD_TAU_M, VSD_THRESHOLD = 0.015, 0.020, 0.3
-SET_VERSION = 1
+#: Per-query arrays stored for each part (besides its references).
+_QUERY_ARRAYS = ("images", "masks", "rotations", "depth", "frames", "full", "visible")
+SET_VERSION = 2  # 2: full frames and masks kept (BOP export)
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,9 @@ class TlessSet:
         refs: name -> references (n_references views at shared rotations).
         queries: name -> query crops with labels and symmetries.
         depth: name -> (n_queries, R, R) float16 scene depth, metres (R = render_size).
+        frames: name -> (n_queries, R, R, 3) uint8 full-frame colour of each query scene (before the crop's
+            sensor noise), and ``full``/``visible``: name -> (n_queries, R, R) bool silhouette of the part alone /
+            its visible part (what BOP calls mask and mask_visib).
         key: the cache key of the rendered set (its folder's name).
     """
 
@@ -89,6 +94,9 @@ class TlessSet:
     refs: dict[str, ObjectViews]
     queries: dict[str, ObjectViews]
     depth: dict[str, np.ndarray]
+    frames: dict[str, np.ndarray] = field(default_factory=dict)
+    full: dict[str, np.ndarray] = field(default_factory=dict)
+    visible: dict[str, np.ndarray] = field(default_factory=dict)
     key: str = ""
 
     @property
@@ -105,7 +113,7 @@ def _key(cfg: TlessConfig, m: Manifest) -> str:
 def _render_queries(obj: ObjectMesh, family: ClutterFamily, cfg: TlessConfig, photos: dict, rng) -> dict:
     style = query_style("linemod", **TLESS_STYLE)
     rc = cfg.render()
-    out = {"images": [], "masks": [], "rotations": [], "depth": []}
+    out = {"images": [], "masks": [], "rotations": [], "depth": [], "frames": [], "full": [], "visible": []}
     tries = 0
     while len(out["images"]) < cfg.n_queries:
         tries += 1
@@ -120,6 +128,9 @@ def _render_queries(obj: ObjectMesh, family: ClutterFamily, cfg: TlessConfig, ph
         out["masks"].append(vis)
         out["rotations"].append(vp.R_m2c.astype(np.float32))
         out["depth"].append(depth.astype(np.float32))
+        out["frames"].append(color)
+        out["full"].append(full)
+        out["visible"].append(visible)
     return {k: np.stack(v) for k, v in out.items()}
 
 
@@ -138,7 +149,7 @@ def _build(d: Path, cfg: TlessConfig, m: Manifest, parts: dict[str, ObjectMesh],
         family = ClutterFamily(f"tless-{name}", others, PART_GREY)
         q = _render_queries(obj, family, cfg, photos, np.random.default_rng([cfg.seed, 31337, i]))
         bar.update(cfg.n_queries)
-        arrays = {"refs": np.stack(refs), "images": q["images"], "masks": q["masks"], "rotations": q["rotations"],
+        arrays = {"refs": np.stack(refs), **{k: q[k] for k in _QUERY_ARRAYS if k != "depth"},
                   "depth": q["depth"].astype(np.float16)}
         for k, a in arrays.items():
             f = d / f"{name}.{k}.npy"
@@ -169,14 +180,15 @@ def load_tless(cfg: TlessConfig = TlessConfig(), cache: str | os.PathLike | None
                 _build(d, cfg, m, parts, progress)
     meta = json.loads((d / "meta.json").read_text())
     R_refs = haar_uniform(cfg.n_references, seed=meta["ref_seed"]).astype(np.float32)
-    refs, queries, depth = {}, {}, {}
+    refs, queries, depth, frames, full, visible = {}, {}, {}, {}, {}, {}
     for name, obj in parts.items():
-        arr = {k: _load_checked(d / f"{name}.{k}.npy", meta["sha256"]) for k in
-               ("refs", "images", "masks", "rotations", "depth")}
+        arr = {k: _load_checked(d / f"{name}.{k}.npy", meta["sha256"]) for k in ("refs", *_QUERY_ARRAYS)}
         refs[name] = ObjectViews(name, arr["refs"], R_refs, None, "reference", obj.symmetries)
         queries[name] = ObjectViews(name, arr["images"], arr["rotations"], arr["masks"], "query", obj.symmetries)
         depth[name] = arr["depth"]
-    return TlessSet(cfg, parts, refs, queries, depth, d.name)
+        for k, store in (("frames", frames), ("full", full), ("visible", visible)):
+            store[name] = arr[k]
+    return TlessSet(cfg, parts, refs, queries, depth, frames, full, visible, d.name)
 
 
 def set_key(tset: TlessSet) -> str:

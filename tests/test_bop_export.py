@@ -1,0 +1,55 @@
+"""BOP export of the T-LESS-like set and of predictions, read back with helpers.bop (round trip)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helpers.baselines import HogModel
+from helpers.bop import iter_scene_instances, load_bop_views, load_models_info
+from helpers.bop_export import export_tless_like, read_results_csv, tless_like_results, write_results_csv
+from helpers.tless import TlessConfig, load_tless
+from helpers.tless_protocol import evaluate_tless
+
+pytestmark = pytest.mark.gl
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("cache")
+    ts = load_tless(TlessConfig(n_references=8, n_queries=2), cache=cache, progress=False)
+    return ts, export_tless_like(ts, tmp_path_factory.mktemp("bop") / "tless_like", cache=cache), cache
+
+
+def test_the_exported_dataset_reads_back_with_the_same_views_and_labels(exported):
+    ts, root, _ = exported
+    info = load_models_info(root)
+    assert sorted(info) == list(range(1, len(ts.names) + 1))
+    insts = list(iter_scene_instances(root, "test"))
+    assert len(insts) == 2 * len(ts.names)
+    for oid, name in enumerate(ts.names, start=1):
+        assert np.isclose(info[oid].diameter, ts.parts[name].diameter * 1000, rtol=1e-6)
+        assert len(info[oid].symmetries) == len(ts.parts[name].symmetries)  # same group, discretised alike
+        v = load_bop_views(root, "test", oid, size=64, box="visib")
+        assert len(v) == 2 and np.allclose(v.rotations, ts.queries[name].rotations, atol=1e-6)
+        ours = ts.queries[name].masks
+        for i in range(2):  # same object, same place: the BOP crop's visible mask overlaps ours (jitter <= 3 %)
+            iou = (v.masks[i] & ours[i]).sum() / max(1, (v.masks[i] | ours[i]).sum())
+            assert iou > 0.6, (name, i, iou)
+    depth = __import__("cv2").imread(str(root / "test" / "000001" / "depth" / "000000.png"), -1)
+    assert depth.dtype == np.uint16
+    assert np.allclose(depth * 0.1 / 1000, ts.depth[ts.names[0]][0].astype(np.float64), atol=2e-4)
+
+
+def test_predictions_round_trip_through_the_results_csv(exported, tmp_path):
+    ts, _, cache = exported
+    res = evaluate_tless(HogModel(), ts, device="cpu", cache=cache, progress=False)
+    rows = tless_like_results(ts, res)
+    back = read_results_csv(write_results_csv(rows, tmp_path / "hog_tless-like-test.csv"))
+    assert len(back) == len(rows) == 2 * len(ts.names)
+    for a, b in zip(rows, back):
+        assert (a["scene_id"], a["im_id"], a["obj_id"]) == (b["scene_id"], b["im_id"], b["obj_id"])
+        assert np.allclose(a["R"], b["R"], atol=1e-7) and np.allclose(a["t"], b["t"], atol=1e-3)
+    with pytest.raises(ValueError, match="expected a BOP results CSV"):
+        (tmp_path / "bad.csv").write_text("a,b\n1,2\n")
+        read_results_csv(tmp_path / "bad.csv")
