@@ -53,3 +53,39 @@ def test_predictions_round_trip_through_the_results_csv(exported, tmp_path):
     with pytest.raises(ValueError, match="expected a BOP results CSV"):
         (tmp_path / "bad.csv").write_text("a,b\n1,2\n")
         read_results_csv(tmp_path / "bad.csv")
+
+
+def test_a_bop_dataset_on_disk_is_scored_the_same_way(exported):
+    """The exported set read as a real BOP dataset (helpers.tless.load_bop_tless): its queries, and err_vsd from
+    its depth PNGs, at its cameras and poses: 0 for the true rotations, as on the rendered set."""
+    from helpers.tless import load_bop_tless, vsd_errors
+
+    ts, root, _ = exported
+    bop = load_bop_tless(root, split="test", size=64, n_references=8, progress=False)
+    assert sorted(bop.names) == [f"obj_{i:06d}" for i in range(1, len(ts.names) + 1)]
+    name, part = "obj_000009", ts.names[8]
+    assert np.allclose(bop.queries[name].rotations, ts.queries[part].rotations, atol=1e-6)
+    R = bop.queries[name].rotations.astype(np.float64)
+    assert np.allclose(vsd_errors(bop, name, R), 0.0)
+    assert np.allclose(vsd_errors(bop, name, R[::-1].copy()), vsd_errors(ts, part, R[::-1].copy()), atol=0.05)
+    res = evaluate_tless(HogModel(), bop, device="cpu", progress=False)
+    assert len(res["per_query"]) == 2 * len(ts.names) and res["per_query"]["vsd"].between(0, 1).all()
+
+
+@pytest.mark.slow
+def test_notebook_09_runs_on_a_bop_dataset_on_disk(exported, tmp_path):
+    """Notebook 09 with bop_root: a real T-LESS would take the same path (here the exported fixture)."""
+    import json
+
+    import papermill as pm
+
+    from helpers.params import NOTEBOOK_DIR
+
+    _, root, cache = exported
+    out = tmp_path / "out"
+    pm.execute_notebook(str(NOTEBOOK_DIR / "09_tless.ipynb"), str(tmp_path / "09.ipynb"), cwd=str(NOTEBOOK_DIR),
+                        parameters={"bop_root": str(root), "bop_split": "test", "n_references": 8, "n_queries": 2,
+                                    "cache_dir": str(cache), "out_dir": str(out)}, progress_bar=False)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["set"]["source"].startswith("BOP dataset") and len(m["set"]["parts"]) >= 15
+    assert {r["method"] for r in m["table"]} >= {"HOG"} and (out / "per_query_ours.csv").exists()

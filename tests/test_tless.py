@@ -87,6 +87,7 @@ def _tless_parameters(**over):
     ({"global_model": "nope/best.pt"}, r"'global_model' expects a zoo model name or an existing checkpoint"),
     ({"min_visible": 0.0}, r"'min_visible' expects a share in \(0, 1\]"),
     ({"n_queries": 0}, r"'n_queries' expects an int >= 1"),
+    ({"bop_root": "no/such/folder"}, r"'bop_root' expects '' or a BOP dataset folder"),
 ])
 def test_tless_parameters_are_checked_before_any_work(over, match):
     from helpers.param_values import check_values

@@ -153,6 +153,11 @@ def _check_tless(notebook: str, P: dict[str, Any]) -> None:
         _check_model_choice(notebook, "global_model", P["global_model"], P["image_size"])
     if not 0.0 < P["min_visible"] <= 1.0:
         raise _err(notebook, "min_visible", "a share in (0, 1]", P["min_visible"])
+    if P["bop_root"]:
+        root = repo_path(P["bop_root"])
+        if not (root / P["bop_split"]).is_dir() or not any((root / "models").glob("models_info.json")):
+            raise _err(notebook, "bop_root", f"'' or a BOP dataset folder with models/models_info.json and a "
+                       f"{P['bop_split']!r} split folder (bop_split)", P["bop_root"])
 
 
 def _check_variants(notebook: str, variants: list) -> None:

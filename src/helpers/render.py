@@ -197,17 +197,19 @@ def gl_platform() -> str:
     return plat
 
 
-def _renderer(render_size: int):
-    """The process-wide OffscreenRenderer (created once, resized as needed)."""
+def _renderer(render_size: int, height: int | None = None):
+    """The process-wide OffscreenRenderer (created once, resized as needed): ``render_size`` square, or
+    ``render_size`` x ``height`` pixels (width x height) when ``height`` is given."""
     gl_platform()
     import pyrender
 
+    h = render_size if height is None else height
     r = _STATE["renderer"]
     if r is None:
-        r = pyrender.OffscreenRenderer(render_size, render_size)
+        r = pyrender.OffscreenRenderer(render_size, h)
         _STATE["renderer"] = r
-    elif r.viewport_width != render_size:
-        r.viewport_width = r.viewport_height = render_size
+    elif r.viewport_width != render_size or r.viewport_height != h:
+        r.viewport_width, r.viewport_height = render_size, h
     return r
 
 
@@ -284,6 +286,34 @@ def render_raw(obj: ObjectMesh, R_m2c: np.ndarray, cfg: RenderConfig, *,
     light.intensity = light_intensity
     color, depth = r.render(scene)
     return np.ascontiguousarray(color[..., :3]), depth.astype(np.float32)
+
+
+def render_depth_at(obj: ObjectMesh, R_m2c: np.ndarray, t_m2c: np.ndarray, K: np.ndarray, width: int,
+                    height: int) -> np.ndarray:
+    """Depth (height, width) float32, metres (0 where empty), of ``obj`` alone at pose (R_m2c (3, 3), t_m2c (3,)
+    metres) seen by an OpenCV camera with intrinsics ``K`` (3, 3) and that image size: a real dataset's camera
+    (BOP), for err_vsd. The mesh is used in its own model frame (no re-centring)."""
+    import pyrender
+
+    key = ("depth_at", obj.name, obj.sha256, obj.diameter)
+    scene = _STATE["scenes"].get(key)
+    if scene is None:
+        pm, _ = _pyrender_mesh(obj)
+        scene = pyrender.Scene(bg_color=[0, 0, 0, 0])
+        scene.add(pm, pose=np.eye(4), name="object")
+        _STATE["scenes"][key] = scene
+    for n in [n for n in scene.camera_nodes]:
+        scene.remove_node(n)
+    t = np.asarray(t_m2c, dtype=np.float64)
+    cam = pyrender.IntrinsicsCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], znear=max(1e-3, 0.1 * (t[2] - obj.diameter)),
+                                    zfar=t[2] + 10 * obj.diameter)
+    scene.add(cam, pose=_CV2GL)
+    obj_node = next(iter(scene.get_nodes(name="object")))
+    P = np.eye(4)
+    P[:3, :3], P[:3, 3] = R_m2c, t
+    scene.set_pose(obj_node, P)
+    r = _renderer(int(width), int(height))
+    return r.render(scene, flags=pyrender.RenderFlags.DEPTH_ONLY).astype(np.float32)
 
 
 def _frame_with_minus_z(d: np.ndarray) -> np.ndarray:

@@ -22,6 +22,7 @@ import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -29,10 +30,11 @@ from .datasets import background_photos
 from .fileio import atomic_write_bytes, atomic_write_json, check_sha256, sha256_file, stable_hash
 from .locks import entry_lock
 from .manifest import Manifest, load_manifest
-from .meshes import ObjectMesh
+from .bop import BOPFormatError, iter_scene_instances, load_bop_views, load_model_mesh, load_models_info
+from .meshes import ObjectMesh, set_color
 from .parts import load_part
 from .paths import cache_dir
-from .render import RenderConfig, apply_sensor, crop_view, query_style, render_raw, render_reference
+from .render import RenderConfig, apply_sensor, crop_view, query_style, render_depth_at, render_raw, render_reference
 from .rotations import haar_uniform, symmetric_geodesic_deg
 from .tabletop import ClutterFamily, render_tabletop
 from .views import ObjectViews
@@ -87,6 +89,8 @@ class TlessSet:
             sensor noise), and ``full``/``visible``: name -> (n_queries, R, R) bool silhouette of the part alone /
             its visible part (what BOP calls mask and mask_visib).
         key: the cache key of the rendered set (its folder's name).
+        instances: a real BOP dataset's set only (:func:`load_bop_tless`): name -> the queries'
+            :class:`helpers.bop.Instance` (camera, pose, image), whose depth images are read when scoring.
     """
 
     cfg: TlessConfig
@@ -98,6 +102,7 @@ class TlessSet:
     full: dict[str, np.ndarray] = field(default_factory=dict)
     visible: dict[str, np.ndarray] = field(default_factory=dict)
     key: str = ""
+    instances: dict[str, list] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -202,6 +207,66 @@ def _load_checked(f: Path, sums: dict) -> np.ndarray:
     return np.load(f)
 
 
+def load_bop_tless(root: str | os.PathLike, split: str = "test_primesense", size: int = 64, render_size: int = 96,
+                   n_references: int = 512, max_instances: int | None = None, min_visib: float = 0.1,
+                   seed: int = 0, progress: bool = True) -> TlessSet:
+    """A real T-LESS (or any BOP dataset with depth) as the same kind of set: queries cropped from ``split``
+    (:func:`helpers.bop.load_bop_views`, at most ``max_instances`` per object), references rendered from its
+    models (grey, model frame kept) at ``n_references`` Haar-uniform rotations; err_vsd then reads each
+    query's depth image. Not cached (the references take about a minute per 10,000 renders)."""
+    root = Path(root)
+    infos = load_models_info(root)
+    cfg = TlessConfig(image_size=size, render_size=render_size, n_references=n_references, seed=seed)
+    R_refs = haar_uniform(n_references, seed=seed)
+    parts, refs, queries, instances = {}, {}, {}, {}
+    by_key = {(i.scene_id, i.im_id, i.gt_index): i for i in iter_scene_instances(root, split, None, min_visib)}
+    for oid, info in tqdm(sorted(infos.items()), desc="BOP objects", disable=not progress):
+        name = f"obj_{oid:06d}"
+        mesh = set_color(load_model_mesh(root, oid), PART_GREY)
+        mesh.apply_scale(0.001)  # mm -> m, model frame kept (BOP poses refer to it)
+        obj = ObjectMesh(name, mesh, info.diameter / 1000.0, False, sha256_file(root / "models" / f"{name}.ply"),
+                         info.symmetries)
+        try:
+            q = load_bop_views(root, split, oid, size, max_instances, min_visib=min_visib, name=name)
+        except BOPFormatError:
+            continue  # an object without test instances in this split
+        parts[name] = obj
+        refs[name] = ObjectViews(name, np.stack([render_reference(obj, R, cfg.render())[0] for R in R_refs]),
+                                 R_refs.astype(np.float32), None, "reference", info.symmetries)
+        queries[name] = q
+        instances[name] = [by_key[k] for k in q.meta["instances"]]
+    if not parts:
+        raise BOPFormatError(f"{root / split}: no object has test instances with visib_fract >= {min_visib}")
+    key = "bop-" + stable_hash([str(root.resolve()), split, size, render_size, n_references, max_instances,
+                                min_visib, seed])
+    return TlessSet(cfg, parts, refs, queries, {}, key=key, instances=instances)
+
+
+def _bop_depth(inst) -> np.ndarray:
+    """The instance image's depth (H, W) in metres (BOP: uint16 x depth_scale mm)."""
+    scene = inst.rgb_path.parent.parent
+    cams = json.loads((scene / "scene_camera.json").read_text())
+    scale = float(cams[str(inst.im_id)].get("depth_scale", 1.0))
+    path = scene / "depth" / f"{inst.im_id:06d}.png"
+    d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if d is None:
+        raise BOPFormatError(f"{path}: missing or unreadable depth image (err_vsd needs the test depth)")
+    return d.astype(np.float32) * scale / 1000.0
+
+
+def _bop_vsd_errors(tset: TlessSet, name: str, R_est: np.ndarray, idx: list[int]) -> np.ndarray:
+    obj, out = tset.parts[name], np.empty(len(idx))
+    for k, (Re, i) in enumerate(zip(R_est, idx)):
+        inst = tset.instances[name][i]
+        test = _bop_depth(inst)
+        h, w = test.shape
+        t = inst.t_m2c / 1000.0
+        d_est = render_depth_at(obj, np.asarray(Re, np.float64), t, inst.K, w, h)
+        d_gt = render_depth_at(obj, inst.R_m2c, t, inst.K, w, h)
+        out[k] = vsd_error(d_est, d_gt, test, inst.K, VSD_DELTA_M, VSD_TAU_M)
+    return out
+
+
 def vsd_errors(tset: TlessSet, name: str, R_est: np.ndarray, indices: list[int] | None = None) -> np.ndarray:
     """(N,) err_vsd of estimated rotations (N, 3, 3) for part ``name``'s queries ``indices`` (default: all, in
     order): depth renders at the estimated and true rotation with the true translation, against the scene's
@@ -211,6 +276,8 @@ def vsd_errors(tset: TlessSet, name: str, R_est: np.ndarray, indices: list[int] 
     idx = list(range(len(tset.queries[name]))) if indices is None else list(indices)
     if len(R_est) != len(idx):
         raise ValueError(f"vsd_errors: {len(R_est)} estimates for {len(idx)} queries of {name!r}")
+    if tset.instances:
+        return _bop_vsd_errors(tset, name, R_est, idx)
     out = np.empty(len(idx))
     for k, (Re, i) in enumerate(zip(R_est, idx)):
         d_est = render_raw(obj, np.asarray(Re, np.float64), rc)[1]
