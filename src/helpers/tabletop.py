@@ -253,6 +253,32 @@ def _rz(a: float) -> np.ndarray:
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
 
 
+def _place_clutter(scene, pool: list, style, vp: Viewpoint, d: float, to_cam, rng: np.random.Generator,
+                   family: ClutterFamily | None) -> list:
+    """Show and pose ``style.n_clutter`` nodes of ``pool`` on the table around the object (``d``: its
+    diameter, metres; ``to_cam``: table coordinates -> camera frame); returns the nodes shown."""
+    n_clutter = int(rng.integers(style.n_clutter[0], style.n_clutter[1] + 1))
+    # Default: beside or behind the object as seen from the camera (at least 70 deg away from the
+    # camera's azimuth), so clutter seldom stands between the camera and the object.
+    az_lo, az_hi = (70.0, 290.0) if family is None else family.azimuth_deg
+    picks = rng.permutation(len(pool))[:n_clutter]
+    shown = []
+    for j in picks:
+        node = pool[int(j)]
+        s = float(rng.uniform(*style.clutter_size))
+        phi = math.radians(vp.azimuth_deg) + math.radians(rng.uniform(az_lo, az_hi))
+        r = max(float(rng.uniform(*style.clutter_distance)), 0.5 + 0.65 * s) * d
+        R = vp.R_w2c @ _rz(rng.uniform(0, 2 * math.pi))
+        node.mesh.is_visible = True
+        rgb = rng.uniform(0.05, 1.0, 3)
+        if family is not None:  # the family's colour, jittered like the object's
+            rgb = np.clip(np.asarray(family.color) * (1 + rng.uniform(-style.color_scale, style.color_scale, 3)), 0, 1)
+        node.mesh.primitives[0].material.baseColorFactor = np.array([*rgb, 1.0], np.float32)
+        scene.set_pose(node, pose4(R * s, to_cam(np.array([r * math.cos(phi), r * math.sin(phi), -vp.height]))))
+        shown.append(node)
+    return shown
+
+
 def render_tabletop(obj: ObjectMesh, cfg, style, photos: dict[str, np.ndarray], rng: np.random.Generator,
                     family: ClutterFamily | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Viewpoint]:
@@ -290,27 +316,8 @@ def render_tabletop(obj: ObjectMesh, cfg, style, photos: dict[str, np.ndarray], 
     table.mesh.is_visible = True
     scene.set_pose(table, pose4(vp.R_w2c @ _rz(rng.uniform(0, 2 * math.pi)), to_cam(off)))
 
-    n_clutter = int(rng.integers(style.n_clutter[0], style.n_clutter[1] + 1))
     pool = extra["clutter"] if family is None else extra["families"][family.key]
-    # Default: beside or behind the object as seen from the camera (at least 70 deg away from the
-    # camera's azimuth), so clutter seldom stands between the camera and the object.
-    az_lo, az_hi = (70.0, 290.0) if family is None else family.azimuth_deg
-    picks = rng.permutation(len(pool))[:n_clutter]
-    shown = []
-    for j in picks:
-        node = pool[int(j)]
-        s = float(rng.uniform(*style.clutter_size))
-        phi = math.radians(vp.azimuth_deg) + math.radians(rng.uniform(az_lo, az_hi))
-        r = max(float(rng.uniform(*style.clutter_distance)), 0.5 + 0.65 * s) * d
-        R = vp.R_w2c @ _rz(rng.uniform(0, 2 * math.pi))
-        node.mesh.is_visible = True
-        rgb = rng.uniform(0.05, 1.0, 3)
-        if family is not None:  # the family's colour, jittered like the object's
-            rgb = np.clip(np.asarray(family.color) * (1 + rng.uniform(-style.color_scale, style.color_scale, 3)), 0, 1)
-        node.mesh.primitives[0].material.baseColorFactor = np.array([*rgb, 1.0], np.float32)
-        P = pose4(R * s, to_cam(np.array([r * math.cos(phi), r * math.sin(phi), -vp.height])))
-        scene.set_pose(node, P)
-        shown.append(node)
+    shown = _place_clutter(scene, pool, style, vp, d, to_cam, rng, family)
 
     # Light from above the table: elevation 30-90 deg, any azimuth; direction it travels, camera frame.
     le, la = math.radians(rng.uniform(30, 90)), rng.uniform(0, 2 * math.pi)
