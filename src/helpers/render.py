@@ -512,7 +512,7 @@ def _render_tabletop_query(obj: ObjectMesh, cfg: RenderConfig, style: QueryStyle
     img, vis = crop_view(color, visible, cfg, style, rng)
     if rng.random() < style.occlusion:
         photos_l = _photos(photos)
-        tex = background_patch(photos_l[int(rng.integers(len(photos_l)))], S, rng)
+        tex = background_patch(photos_l[int(rng.integers(len(photos_l)))], img.shape[0], rng)
         img8, vis = add_occluder(np.clip(img, 0, 255).astype(np.uint8), vis, rng, style.occlusion_fraction, tex)
         img = img8.astype(np.float32)
     return _sensor(img, style, rng), vis, vp.R_m2c
