@@ -45,6 +45,11 @@ def _bbox(mask: np.ndarray) -> list[int]:
     return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
 
 
+def _t_mm(tset: TlessSet, name: str) -> list[float]:
+    """The part's translation in the camera frame, mm: on the optical axis at the renders' distance."""
+    return [0.0, 0.0, float(tset.cfg.render().distance_diameters * tset.parts[name].diameter * 1000.0)]
+
+
 def _models(tset: TlessSet, root: Path, cache: str | os.PathLike | None) -> dict[str, int]:
     """Copy each part's PLY (mm) as obj_XXXXXX.ply and write models_info.json; returns name -> obj_id."""
     import trimesh
@@ -72,13 +77,12 @@ def export_tless_like(tset: TlessSet, root: str | os.PathLike, cache: str | os.P
         raise ValueError("export_tless_like: this set has no full frames (rendered before SET_VERSION 2)")
     root = Path(root)
     ids = _models(tset, root, cache)
-    rc = tset.cfg.render()
-    K = rc.intrinsics()
+    K = tset.cfg.render().intrinsics()
     for name, oid in ids.items():
         scene = root / "test" / f"{oid:06d}"
         for sub in ("rgb", "depth", "mask", "mask_visib"):
             (scene / sub).mkdir(parents=True, exist_ok=True)
-        t_mm = [0.0, 0.0, float(rc.distance_diameters * tset.parts[name].diameter * 1000.0)]
+        t_mm = _t_mm(tset, name)
         cams, gts, infos = {}, {}, {}
         for i, R in enumerate(tset.queries[name].rotations.astype(np.float64)):
             full, vis = tset.full[name][i], tset.visible[name][i]
@@ -103,13 +107,11 @@ def tless_like_results(tset: TlessSet, res: dict, ids: dict[str, int] | None = N
     the estimated rotation with the true translation (the paper's rotation-only protocol), the retrieval score
     unknown (1.0), the predicted part as obj_id."""
     ids = ids or {n: i + 1 for i, n in enumerate(tset.names)}
-    rc = tset.cfg.render()
     rows = []
     for r in res["records"]:
         name, i = r.query_id.rsplit(":", 1)
-        t_mm = [0.0, 0.0, float(rc.distance_diameters * tset.parts[name].diameter * 1000.0)]
         rows.append({"scene_id": ids[name], "im_id": int(i), "obj_id": ids[r.pred_obj], "score": 1.0,
-                     "R": np.asarray(r.R_est, np.float64), "t": t_mm, "time": -1})
+                     "R": np.asarray(r.R_est, np.float64), "t": _t_mm(tset, name), "time": -1})
     return rows
 
 

@@ -434,8 +434,8 @@ def _jittered_box(mask: np.ndarray, cfg: RenderConfig, style: QueryStyle, rng: n
     return cx, cy, side
 
 
-def _sensor(img: np.ndarray, style: QueryStyle, rng: np.random.Generator) -> np.ndarray:
-    """Blur and noise of a float image; uint8 out."""
+def apply_sensor(img: np.ndarray, style: QueryStyle, rng: np.random.Generator) -> np.ndarray:
+    """The style's sensor blur and noise on a float image (C, C, 3); uint8 out."""
     sigma = rng.uniform(0, style.blur_sigma)
     if sigma > 0.2:
         img = cv2.GaussianBlur(img, (0, 0), sigma)
@@ -478,7 +478,7 @@ def render_query(obj: ObjectMesh, R_m2c: np.ndarray, cfg: RenderConfig, style: Q
         tex = background_patch(photos[int(rng.integers(len(photos)))], S, rng)
         img8, vis = add_occluder(np.clip(img, 0, 255).astype(np.uint8), vis, rng, style.occlusion_fraction, tex)
         img = img8.astype(np.float32)
-    return _sensor(img, style, rng), vis, inplane_rotate_label(R_m2c, angle)
+    return apply_sensor(img, style, rng), vis, inplane_rotate_label(R_m2c, angle)
 
 
 def crop_view(color: np.ndarray, visible: np.ndarray, cfg: RenderConfig, style: QueryStyle,
@@ -492,11 +492,6 @@ def crop_view(color: np.ndarray, visible: np.ndarray, cfg: RenderConfig, style: 
     img = cv2.warpAffine(color, M, (S, S), flags=cv2.INTER_AREA, borderValue=0).astype(np.float32)
     vis = cv2.warpAffine(visible.astype(np.uint8) * 255, M, (S, S), flags=cv2.INTER_LINEAR) > 127
     return img, vis
-
-
-def apply_sensor(img: np.ndarray, style: QueryStyle, rng: np.random.Generator) -> np.ndarray:
-    """The style's sensor blur and noise on a float image (C, C, 3); uint8 out."""
-    return _sensor(img, style, rng)
 
 
 def _render_tabletop_query(obj: ObjectMesh, cfg: RenderConfig, style: QueryStyle, backgrounds,
@@ -515,7 +510,7 @@ def _render_tabletop_query(obj: ObjectMesh, cfg: RenderConfig, style: QueryStyle
         tex = background_patch(photos_l[int(rng.integers(len(photos_l)))], img.shape[0], rng)
         img8, vis = add_occluder(np.clip(img, 0, 255).astype(np.uint8), vis, rng, style.occlusion_fraction, tex)
         img = img8.astype(np.float32)
-    return _sensor(img, style, rng), vis, vp.R_m2c
+    return apply_sensor(img, style, rng), vis, vp.R_m2c
 
 
 def config_dict(cfg: RenderConfig, style: QueryStyle | None = None) -> dict:

@@ -16,10 +16,10 @@ intrinsics ``K`` of :meth:`helpers.render.RenderConfig.intrinsics` (the referenc
 
 from __future__ import annotations
 
-import io
 import json
 import os
 from dataclasses import asdict, dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
@@ -27,10 +27,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .datasets import background_photos
-from .fileio import atomic_write_bytes, atomic_write_json, check_sha256, sha256_file, stable_hash
+from .fileio import atomic_save_npy, atomic_write_json, check_sha256, sha256_file, stable_hash
 from .locks import entry_lock
-from .manifest import Manifest, load_manifest
 from .bop import BOPFormatError, iter_scene_instances, load_bop_views, load_model_mesh, load_models_info
+from .manifest import Manifest, load_manifest
 from .meshes import ObjectMesh, set_color
 from .parts import load_part
 from .paths import cache_dir
@@ -157,18 +157,11 @@ def _build(d: Path, cfg: TlessConfig, m: Manifest, parts: dict[str, ObjectMesh],
         arrays = {"refs": np.stack(refs), **{k: q[k] for k in _QUERY_ARRAYS if k != "depth"},
                   "depth": q["depth"].astype(np.float16)}
         for k, a in arrays.items():
-            f = d / f"{name}.{k}.npy"
-            atomic_write_bytes(f, _npy_bytes(a))
+            f = atomic_save_npy(d / f"{name}.{k}.npy", a)
             sums[f.name] = sha256_file(f)
     bar.close()
     atomic_write_json(d / "meta.json", {"cfg": asdict(cfg), "style": TLESS_STYLE, "parts": names,
                                         "ref_seed": cfg.seed, "sha256": sums})
-
-
-def _npy_bytes(a: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, a)
-    return buf.getvalue()
 
 
 def load_tless(cfg: TlessConfig = TlessConfig(), cache: str | os.PathLike | None = None,
@@ -196,11 +189,6 @@ def load_tless(cfg: TlessConfig = TlessConfig(), cache: str | os.PathLike | None
     return TlessSet(cfg, parts, refs, queries, depth, frames, full, visible, d.name)
 
 
-def set_key(tset: TlessSet) -> str:
-    """The set's cache key (names its reference features in the feature cache)."""
-    return tset.key
-
-
 def _load_checked(f: Path, sums: dict) -> np.ndarray:
     check_sha256(f, sums.get(f.name, ""), f.parent / "meta.json",
                  f"delete {f.parent} (the next run renders it again)")
@@ -220,16 +208,16 @@ def load_bop_tless(root: str | os.PathLike, split: str = "test_primesense", size
     R_refs = haar_uniform(n_references, seed=seed)
     parts, refs, queries, instances = {}, {}, {}, {}
     by_key = {(i.scene_id, i.im_id, i.gt_index): i for i in iter_scene_instances(root, split, None, min_visib)}
+    present = {i.obj_id for i in by_key.values()}
     for oid, info in tqdm(sorted(infos.items()), desc="BOP objects", disable=not progress):
+        if oid not in present:
+            continue  # an object without test instances in this split
         name = f"obj_{oid:06d}"
         mesh = set_color(load_model_mesh(root, oid), PART_GREY)
         mesh.apply_scale(0.001)  # mm -> m, model frame kept (BOP poses refer to it)
         obj = ObjectMesh(name, mesh, info.diameter / 1000.0, False, sha256_file(root / "models" / f"{name}.ply"),
                          info.symmetries)
-        try:
-            q = load_bop_views(root, split, oid, size, max_instances, min_visib=min_visib, name=name)
-        except BOPFormatError:
-            continue  # an object without test instances in this split
+        q = load_bop_views(root, split, oid, size, max_instances, min_visib=min_visib, name=name)
         parts[name] = obj
         refs[name] = ObjectViews(name, np.stack([render_reference(obj, R, cfg.render())[0] for R in R_refs]),
                                  R_refs.astype(np.float32), None, "reference", info.symmetries)
@@ -242,11 +230,17 @@ def load_bop_tless(root: str | os.PathLike, split: str = "test_primesense", size
     return TlessSet(cfg, parts, refs, queries, {}, key=key, instances=instances)
 
 
+@lru_cache(maxsize=8)
+def _depth_scales(scene: Path) -> dict[str, float]:
+    """im_id -> depth_scale (mm per depth unit) of one BOP scene, read once per scene."""
+    cams = json.loads((scene / "scene_camera.json").read_text())
+    return {k: float(v.get("depth_scale", 1.0)) for k, v in cams.items()}
+
+
 def _bop_depth(inst) -> np.ndarray:
     """The instance image's depth (H, W) in metres (BOP: uint16 x depth_scale mm)."""
     scene = inst.rgb_path.parent.parent
-    cams = json.loads((scene / "scene_camera.json").read_text())
-    scale = float(cams[str(inst.im_id)].get("depth_scale", 1.0))
+    scale = _depth_scales(scene)[str(inst.im_id)]
     path = scene / "depth" / f"{inst.im_id:06d}.png"
     d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if d is None:

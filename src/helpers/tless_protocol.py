@@ -22,7 +22,7 @@ from .features import FeatureCache, encode_batch, model_fingerprint
 from .metrics import summarise_queries
 from .paths import cache_dir
 from .study import evaluate
-from .tless import VSD_THRESHOLD, TlessSet, set_key, vsd_errors
+from .tless import VSD_THRESHOLD, TlessSet, vsd_errors
 
 
 def tless_bank(model: Any, tset: TlessSet, device: str = "auto", cache: str | os.PathLike | None = None,
@@ -31,7 +31,7 @@ def tless_bank(model: Any, tset: TlessSet, device: str = "auto", cache: str | os
     dev = resolve_device(device)
     fc = FeatureCache(cache_dir(cache) / "features")
     mkey = model_fingerprint(model)
-    feats = [fc.get_or_build(model, mkey, tset.refs[n], f"tless-{set_key(tset)}-{n}", batch=encode_batch(dev),
+    feats = [fc.get_or_build(model, mkey, tset.refs[n], f"tless-{tset.key}-{n}", batch=encode_batch(dev),
                              device=dev, progress=progress) for n in tset.names]
     return ReferenceBank(feats, tset.refs[tset.names[0]].rotations, tset.names, k_ac=1)
 
@@ -64,11 +64,6 @@ def evaluate_tless(model: Any, tset: TlessSet, device: str = "auto", cache: str 
     per_object["vsd_acc"] = 100.0 * pq.groupby("obj")["vsd_ok"].mean().reindex(per_object.index)
     means = {**means, "vsd_acc": float(per_object["vsd_acc"].mean()), "median_vsd": float(pq["vsd"].median())}
     return {"per_query": pq, "per_object": per_object, "means": means, "records": res["records"]}
-
-
-def same_queries(a: pd.DataFrame, b: pd.DataFrame) -> bool:
-    """True when two per-query tables hold the same queries in the same order (pairing is valid)."""
-    return list(a["query_id"]) == list(b["query_id"]) and list(a["obj"]) == list(b["obj"])
 
 
 def tless_table(results: dict[str, dict]) -> pd.DataFrame:
