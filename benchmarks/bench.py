@@ -48,15 +48,26 @@ if _HERE not in sys.path:
     sys.path.insert(0, _HERE)
 
 import timing  # noqa: E402
-from bench_fusion import bench_fusion, bench_gemm, fusion_flops_per_pair, _unit_features  # noqa: E402,F401
+from bench_fusion import _unit_features, bench_fusion, bench_gemm, fusion_flops_per_pair  # noqa: E402,F401
 from bench_render import bench_render  # noqa: E402
-from bench_retrieval import (C2F_COARSE_K, C2F_REFINE_OBJECTS, PAPER_FPS_K, PAPER_K_AC,  # noqa: E402,F401
-                             PAPER_OBJECTS, PAPER_REFS, _smooth_bases, _smooth_features, bench_real_agreement,
-                             bench_retrieval_synthetic, cache_bytes, scaled_c2f_params, scaled_fast_params,
-                             write_synthetic_bank)
+from bench_retrieval import (  # noqa: E402,F401
+    C2F_COARSE_K,
+    C2F_REFINE_OBJECTS,
+    PAPER_FPS_K,
+    PAPER_K_AC,
+    PAPER_OBJECTS,
+    PAPER_REFS,
+    _smooth_bases,
+    _smooth_features,
+    bench_real_agreement,
+    bench_retrieval_synthetic,
+    cache_bytes,
+    scaled_c2f_params,
+    scaled_fast_params,
+    write_synthetic_bank,
+)
 from bench_train import _model, bench_encode, bench_train, bench_train_ab, monotone_readout  # noqa: E402,F401
-from timing import (PeakSampler, Probe, background_load, log, measure, memory_snapshot,  # noqa: E402,F401
-                    source_hashes)
+from timing import PeakSampler, Probe, background_load, log, measure, memory_snapshot, source_hashes  # noqa: E402,F401
 
 # Names above that this file does not use are re-exported, so ``import bench`` offers what it
 # did before the split (benchmarks/hotpath_ab.py uses _model, _unit_features, _smooth_*, Probe).
@@ -237,9 +248,9 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
     """Run every section and write the JSON atomically; returns the result dict."""
     import torch
 
-    from helpers.fileio import atomic_write_json
-    from helpers.paths import portable_obj
-    from helpers.runinfo import run_record
+    from helpers.core.fileio import atomic_write_json
+    from helpers.core.paths import portable_obj
+    from helpers.study.provenance import run_record
 
     gate = timing.configure(cfg.quiet_threshold, cfg.wait_quiet_s, cfg.retry_contended)
     torch.set_num_threads(cfg.threads)
@@ -258,7 +269,7 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
     res["provenance"] = run_record("bench", {**cfg.to_dict(), "checkpoint": checkpoint})
     res["measured_sources"] = source_hashes()
     # Build (or load) the fused fusion kernel before anything is timed, and say whether it is used.
-    from helpers import fusion_kernel
+    from helpers.net import fusion_kernel
     fusion_kernel.get()
     res["fusion_kernel"] = fusion_kernel.status()
 
@@ -380,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="smaller sizes (~3 min)")
     ap.add_argument("--out", default=None, help="JSON output (default benchmarks/results/bench[_quick].json)")
     ap.add_argument("--checkpoint", default=None, help="model checkpoint for the real-set agreement "
-                                                       "(helpers.train.load_model); default: random init")
+                                                       "(helpers.training.train.load_model); default: random init")
     ap.add_argument("--tmp", default=None, help="folder for temporary caches (default: system temp)")
     ap.add_argument("--wait-quiet", type=float, default=None,
                     help="total seconds the run may wait for other processes to leave the CPUs "

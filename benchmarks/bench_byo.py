@@ -33,12 +33,13 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from helpers.byo import estimate_rotation
-    from helpers.fileio import atomic_write_json
-    from helpers.paths import portable_obj
-    from helpers.manifest import load_manifest
-    from helpers.model import ModelConfig, OrientationNet
-    from helpers.runinfo import run_record
+    from helpers.core.configs import ModelConfig
+    from helpers.core.fileio import atomic_write_json
+    from helpers.core.paths import portable_obj
+    from helpers.data.manifest import load_manifest
+    from helpers.net.model import OrientationNet
+    from helpers.study.byo import estimate_rotation
+    from helpers.study.provenance import run_record
 
     torch.set_num_threads(2)
     torch.manual_seed(0)

@@ -13,7 +13,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
 from bench_train import _model
 from timing import log, measure, wait_quiet
 

@@ -20,12 +20,12 @@ Two modes (run from the repository root):
 
    loads the npz and measures, each section under its own time cap and all of
    them under ``--budget-s`` (default 420 s; a watchdog writes the JSON and
-   exits if a section overruns): ``train`` (``helpers.train.train`` on the
-   real data, paper config), ``train_step`` (bare ``helpers.train.train_step``
+   exits if a section overruns): ``train`` (``helpers.training.train.train`` on the
+   real data, paper config), ``train_step`` (bare ``helpers.training.train.train_step``
    on random images), ``encode`` (``model.encode`` at batch 256),
    ``retrieval`` (fast vs greedy search over 13 x 10,000 synthetic float16
    references held on the GPU) and ``fusion`` (``model.score`` pair rates,
-   with the block-size constants of ``helpers.model`` as a what-if).
+   with the block-size constants of ``helpers.net.model`` as a what-if).
    The JSON is rewritten after every section. ``--device cpu --tiny`` is a
    small CPU dry run of the same flow.
 
@@ -63,10 +63,19 @@ if _HERE not in sys.path:
     sys.path.insert(0, _HERE)
 
 # Importing gpu_sections (here or through gpu_retrieval) starts the run's clock, T_START.
-from gpu_sections import (  # noqa: E402
-    NPZ_NAME, T_START, Ctx, _log, bench_encode, bench_fusion, bench_train, bench_train_step, load_data,
-    release_cuda)
 from gpu_retrieval import bench_retrieval  # noqa: E402
+from gpu_sections import (  # noqa: E402
+    NPZ_NAME,
+    T_START,
+    Ctx,
+    _log,
+    bench_encode,
+    bench_fusion,
+    bench_train,
+    bench_train_step,
+    load_data,
+    release_cuda,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 SCHEMA_VERSION = 1
@@ -130,11 +139,11 @@ def block_modules(names: list[str]) -> None:
 
 
 def ensure_render_helpers_importable() -> dict:
-    """Let ``helpers.render`` import without trimesh, so the in-plane augmentation works.
+    """Let ``helpers.data.render`` import without trimesh, so the in-plane augmentation works.
 
-    ``helpers.augment.box_crop`` (the in-plane rotation, p = 0.5 per query)
-    imports ``crop_affine``/``silhouette_box`` from ``helpers.render``, which
-    imports ``helpers.meshes``, which imports ``trimesh`` at module level (it is
+    ``helpers.training.augment.box_crop`` (the in-plane rotation, p = 0.5 per query)
+    imports ``crop_affine``/``silhouette_box`` from ``helpers.data.render``, which
+    imports ``helpers.data.meshes``, which imports ``trimesh`` at module level (it is
     used only inside functions there). Where trimesh is missing a placeholder
     module is registered; any attribute access on it raises AttributeError
     (what ``hasattr``/``inspect`` expect of a module), so nothing that really
@@ -154,16 +163,16 @@ def ensure_render_helpers_importable() -> dict:
     stub.__getattr__ = __getattr__  # type: ignore[attr-defined]
     stub.__bench_gpu_stub__ = True  # type: ignore[attr-defined]
     sys.modules["trimesh"] = stub
-    return {"trimesh": "placeholder module (not installed): helpers.render imports, mesh functions raise"}
+    return {"trimesh": "placeholder module (not installed): helpers.data.render imports, mesh functions raise"}
 
 
 # =========================================================================== --make-data (CPU, renders)
 
 def paper_parameters() -> tuple[dict, str]:
     """The paper preset's parameters of notebook 02_train (declared defaults + presets/paper yaml)."""
-    from helpers.runner import preset_parameters
+    from helpers.study.runner import preset_parameters
 
-    src = f"helpers.runner.preset_parameters({PRESET!r}, {PRESET_NOTEBOOK!r})"
+    src = f"helpers.study.runner.preset_parameters({PRESET!r}, {PRESET_NOTEBOOK!r})"
     return dict(preset_parameters(PRESET, PRESET_NOTEBOOK)), src
 
 
@@ -172,7 +181,8 @@ def make_data(out_dir: Path, counts: dict, split: int | None = None) -> Path:
     import torch
 
     torch.set_num_threads(1)
-    from helpers.study import DataConfig, prepare_data
+    from helpers.core.configs import DataConfig
+    from helpers.study.pipeline import prepare_data
 
     P, source = paper_parameters()
     split = int(P["split"] if split is None else split)
@@ -181,7 +191,7 @@ def make_data(out_dir: Path, counts: dict, split: int | None = None) -> Path:
         raise SystemExit(f"--make-data: cache dir {cache} is inside the repository; set HELPERS_CACHE_DIR elsewhere")
     cfg = DataConfig(image_size=P["image_size"], render_size=P["render_size"], query_style=P["query_style"],
                      train_context=P["train_context"], seed=P["seed"], workers=0, cache_dir=cache, **counts)
-    from helpers.manifest import load_manifest
+    from helpers.data.manifest import load_manifest
 
     m = load_manifest()
     seen = m.seen_objects(split)
@@ -258,8 +268,8 @@ def device_info(ctx: Ctx) -> dict:
 
 def write_json(path: Path, obj: dict) -> None:
     try:
-        from helpers.fileio import atomic_write_json
-        from helpers.paths import portable_obj
+        from helpers.core.fileio import atomic_write_json
+        from helpers.core.paths import portable_obj
 
         atomic_write_json(path, portable_obj(obj))
         return

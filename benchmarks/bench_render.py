@@ -21,11 +21,13 @@ if TYPE_CHECKING:
 def bench_render(cfg: BenchConfig, tmp_root: str | None = None) -> dict:
     """References/s of ``render_sets`` with 1 and 2 spawned workers (start-up included),
     of ``render_sets(workers=0)`` and of a bare ``render_reference`` loop in this process."""
-    from helpers.datasets import ViewSetSpec, render_sets
-    from helpers.manifest import load_manifest
-    from helpers.meshes import load_object
-    from helpers.render import RenderConfig, gl_platform, render_reference
-    from helpers.rotations import haar_uniform
+    from helpers.core.configs import RenderConfig
+    from helpers.core.rotations import haar_uniform
+    from helpers.data.datasets import ViewSetSpec, render_sets
+    from helpers.data.gl import gl_platform
+    from helpers.data.manifest import load_manifest
+    from helpers.data.meshes import load_object
+    from helpers.data.render import render_reference
 
     platform = gl_platform()  # probe once here so every worker inherits PYOPENGL_PLATFORM
     manifest = load_manifest()

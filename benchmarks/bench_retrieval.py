@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
 from bench_train import _model
 from timing import Probe, gate, log, memory_snapshot, wait_quiet
 
@@ -33,7 +32,7 @@ PAPER_OBJECTS = 13
 PAPER_REFS = 10_000
 PAPER_K_AC = 1024
 PAPER_FPS_K = 256
-# Coarse-to-fine category stage (helpers.retrieval.fast_search coarse_k / refine_objects) at the paper's k_ac.
+# Coarse-to-fine category stage (helpers.search.retrieval.fast_search coarse_k / refine_objects) at the paper's k_ac.
 C2F_COARSE_K = 64
 C2F_REFINE_OBJECTS = 3
 # Its successive-halving variant (halving=True) halves the objects down to this many (notebook 07's default).
@@ -121,8 +120,8 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
     """Fast vs greedy seconds/query over K objects x R references of float16 memmapped features."""
     import torch
 
-    from helpers.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer, search_all
-    from helpers.rotations import haar_uniform
+    from helpers.core.rotations import haar_uniform
+    from helpers.search.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer, search_all
 
     model = _model(cfg.retr_size, cfg.seed, monotone=True).eval()
     c, length = model.cfg.channels, model.feature_length
@@ -293,16 +292,16 @@ def bench_real_agreement(cfg: BenchConfig, checkpoint: str | None = None, tmp_ro
     agreement and Rota. Acc."""
     import torch
 
-    from helpers.datasets import ViewSetSpec, render_sets
-    from helpers.features import encode_views
-    from helpers.manifest import load_manifest
-    from helpers.metrics import Record, evaluate_predictions
-    from helpers.render import QueryStyle, RenderConfig
-    from helpers.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer
+    from helpers.core.configs import QueryStyle, RenderConfig
+    from helpers.data.datasets import ViewSetSpec, render_sets
+    from helpers.data.manifest import load_manifest
+    from helpers.evaluation.metrics import Record, evaluate_predictions
+    from helpers.search.features import encode_views
+    from helpers.search.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer
 
     size = cfg.retr_size
     if checkpoint:
-        from helpers.train import load_model
+        from helpers.training.train import load_model
 
         model, _ = load_model(checkpoint, device="cpu")
         size = model.cfg.image_size
@@ -387,14 +386,14 @@ def bench_real_agreement(cfg: BenchConfig, checkpoint: str | None = None, tmp_ro
             "agreement_same_object": float(np.mean(same_obj)),
             "speedup_greedy_over_fast": greedy["s_per_query_median"] / fast["s_per_query_median"],
             "rot_acc_note": "Rota. Acc. = category right and symmetry-aware geodesic error < 30 deg, "
-                            "averaged per object then over objects (helpers.metrics)"}
+                            "averaged per object then over objects (helpers.evaluation.metrics)"}
 
 
 # =========================================================================== 6. cache size
 
 def cache_bytes(n_objects: int = PAPER_OBJECTS, n_refs: int = PAPER_REFS, sizes=(64, 128), channels: int = 128) -> dict:
     """float16 reference-cache bytes for n_objects x n_refs at each input size (from the feature shapes)."""
-    from helpers.model import level_shapes
+    from helpers.core.configs import level_shapes
 
     out = {}
     for s in sizes:

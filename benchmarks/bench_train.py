@@ -1,6 +1,6 @@
 """Sections 2, 3 and the training A/B of the CPU benchmark: the network's training and encoding speed.
 
-* ``train``: images/s of one optimisation step (``helpers.train.train_step``);
+* ``train``: images/s of one optimisation step (``helpers.training.train.train_step``);
 * ``encode``: references/s of ``model.encode`` under ``inference_mode``;
 * ``train_ab``: the training step as of git 1c2d2ee (A) against today's (B) in
   one process, interleaved, plus where a step's time goes (data vs compute).
@@ -18,7 +18,6 @@ import statistics
 from typing import TYPE_CHECKING
 
 import numpy as np
-
 from timing import Probe, gate, log, measure, wait_quiet
 
 if TYPE_CHECKING:
@@ -28,7 +27,8 @@ if TYPE_CHECKING:
 def _model(size: int, seed: int = 0, monotone: bool = False):
     import torch
 
-    from helpers.model import ModelConfig, OrientationNet
+    from helpers.core.configs import ModelConfig
+    from helpers.net.model import OrientationNet
 
     torch.manual_seed(seed)
     m = OrientationNet(ModelConfig(image_size=size))
@@ -62,13 +62,13 @@ def monotone_readout(model) -> None:
 
 
 def _train_step_fn():
-    """helpers.train.train_step if present with the expected signature, else a local copy."""
+    """helpers.training.train.train_step if present with the expected signature, else a local copy."""
     try:
-        from helpers.train import train_step
+        from helpers.training.train import train_step
 
         params = list(inspect.signature(train_step).parameters)
         if params[:7] == ["model", "optimizer", "images", "q_obj", "q_rot", "r_obj", "r_rot"]:
-            return train_step, "helpers.train.train_step"
+            return train_step, "helpers.training.train.train_step"
     except ImportError:
         pass
 
@@ -79,7 +79,7 @@ def _train_step_fn():
         feats = model.encode(images)
         scores = model.score(feats[:b], feats[b:])
         try:
-            from helpers.losses import pair_weights, weighted_info_nce
+            from helpers.training.losses import pair_weights, weighted_info_nce
 
             w = pair_weights(q_obj, q_rot, r_obj, r_rot) if weighted else None
             loss = weighted_info_nce(scores, torch.arange(b), w, tau)
@@ -90,14 +90,14 @@ def _train_step_fn():
         optimizer.step()
         return float(loss.detach())
 
-    return local_step, "bench.local_step (helpers.train.train_step unavailable)"
+    return local_step, "bench.local_step (helpers.training.train.train_step unavailable)"
 
 
 def bench_train(cfg: BenchConfig, size: int) -> dict:
     """Training images/s: encode queries+references, fuse (B x 2B scores), weighted infoNCE, Adam step."""
     import torch
 
-    from helpers.rotations import haar_uniform
+    from helpers.core.rotations import haar_uniform
 
     step, which = _train_step_fn()
     model = _model(size, cfg.seed).train()
@@ -160,7 +160,7 @@ def _box_mean_1c2d2ee(padded, window: int):
 class _Variant:
     """Context manager: the training step of variant "A" (git 1c2d2ee) or "B" (today's code).
 
-    The only change to the training step since 1c2d2ee is ``helpers.model._box_mean``
+    The only change to the training step since 1c2d2ee is ``helpers.net.model._box_mean``
     (``preprocess`` looks it up at call time), so A swaps the old 2-D pool in and
     restores today's on exit, even if the step raises.
     """
@@ -169,7 +169,7 @@ class _Variant:
         self.name = name
 
     def __enter__(self) -> "_Variant":
-        import helpers.model as hm
+        import helpers.net.model as hm
 
         self._saved = hm._box_mean
         if self.name == "A":
@@ -177,14 +177,14 @@ class _Variant:
         return self
 
     def __exit__(self, *exc) -> None:
-        import helpers.model as hm
+        import helpers.net.model as hm
 
         hm._box_mean = self._saved
 
 
 def synthetic_train_views(n_objects: int, n_refs: int, n_queries: int, size: int, context: float,
                           seed: int) -> tuple[dict, dict]:
-    """(references, training queries): name -> ObjectViews shaped like ``helpers.study.prepare_data``'s.
+    """(references, training queries): name -> ObjectViews shaped like ``helpers.study.pipeline.prepare_data``'s.
 
     References: (n_refs, S, S, 3) uint8, a textured ellipse on black, with masks.
     Queries: stored with context like the study's training queries: side
@@ -193,8 +193,8 @@ def synthetic_train_views(n_objects: int, n_refs: int, n_queries: int, size: int
     box from the rotated mask as in training. Rotations are Haar-uniform. The
     content is arbitrary: the data side's cost depends on the shapes, not on it.
     """
-    from helpers.rotations import haar_uniform
-    from helpers.views import ObjectViews
+    from helpers.core.rotations import haar_uniform
+    from helpers.core.views import ObjectViews
 
     rng = np.random.default_rng(seed)
 
@@ -223,7 +223,7 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
     """Training step A (git 1c2d2ee) vs B (today) at ``train_ab_size``, and data vs compute per step.
 
     A and B run in this process on the same batches (built once by
-    ``helpers.train._Batcher`` from a synthetic set, as ``train()`` builds them)
+    ``helpers.training.train._Batcher`` from a synthetic set, as ``train()`` builds them)
     from the same initial weights and seed, in interleaved blocks A, B, A, B, ...
     of ``train_ab_steps`` steps each (fresh Adam per block), so drift of the
     machine's speed hits both alike. The losses after N steps must agree to
@@ -233,9 +233,9 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
 
     import torch
 
-    from helpers.augment import AugmentConfig
-    from helpers.model import images_to_tensor
-    from helpers.train import _Batcher, _order_stream
+    from helpers.core.configs import AugmentConfig
+    from helpers.net.model import images_to_tensor
+    from helpers.training.train import _Batcher, _order_stream
 
     size, b, n_steps = cfg.train_ab_size, cfg.train_ab_batch, cfg.train_ab_steps
     step, which = _train_step_fn()
@@ -322,8 +322,8 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
     r = model.cfg.norm_window
     out_a["code"] = (f"git {AB_BASE_COMMIT}: preprocess box filter = one {r}x{r} "
                      "F.avg_pool2d(padded, window, stride=1) for mu and one for the mean of squares "
-                     "(helpers.model._box_mean monkeypatched for the A blocks, restored after)")
-    out_b["code"] = ("working tree: helpers.model._box_mean, separable 1 x r then r x 1 stride-1 average pools "
+                     "(helpers.net.model._box_mean monkeypatched for the A blocks, restored after)")
+    out_b["code"] = ("working tree: helpers.net.model._box_mean, separable 1 x r then r x 1 stride-1 average pools "
                      "(measured_sources has the hashes)")
 
     # ---- the changed function alone: preprocess of one batch, A vs B interleaved
@@ -367,7 +367,7 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
                               "queries_per_object": cfg.train_ab_queries_per_object,
                               "query_side": int(round(size * cfg.train_ab_context)), "masks": True,
                               "augment": "AugmentConfig() defaults", "random_ref": "own"},
-            "note": "data = helpers.train._Batcher.make (query views with context, augmentation incl. in-plane "
+            "note": "data = helpers.training.train._Batcher.make (query views with context, augmentation incl. in-plane "
                     "re-crop from the mask, nearest-rotation positives, random references) + images_to_tensor, "
                     "as train() does before each step; compute = B's train_step median over the A/B blocks; "
                     "train() runs them one after the other, so a step costs about their sum"},

@@ -2,7 +2,7 @@
 """Training throughput on CPU: one process with 2 threads (A, today's default) vs data-parallel
 training over 2 gloo processes with 1 thread each (B), the same global batch.
 
-B is ``helpers.train.train`` under torch.distributed exactly as ``helpers.ddp_train`` runs it
+B is ``helpers.training.train.train`` under torch.distributed exactly as ``helpers.study.ddp_train`` runs it
 (DistributedDataParallel, each process encodes its share of the 3B images and all-gathers the
 features, so both compute the full B x 2B loss; gradients averaged): the same math as A up to
 the order of float32 sums (tests/test_ddp.py). C, for context, is one process with one thread:
@@ -41,8 +41,8 @@ GLOO_TIMEOUT = datetime.timedelta(minutes=10)  # a collective waiting longer tha
 
 
 def _data(objects: int, refs: int, queries: int):
-    from helpers.rotations import haar_uniform
-    from helpers.views import ObjectViews
+    from helpers.core.rotations import haar_uniform
+    from helpers.core.views import ObjectViews
 
     def views(name, n, seed):
         rng = np.random.default_rng(seed)
@@ -55,8 +55,7 @@ def _data(objects: int, refs: int, queries: int):
 
 
 def _cfg(args, threads: int):
-    from helpers.model import ModelConfig
-    from helpers.train import TrainConfig
+    from helpers.core.configs import ModelConfig, TrainConfig
 
     return TrainConfig(epochs=args.epochs, steps_per_epoch=args.steps, batch_size=16, lr=1e-3, seed=3,
                        device="cpu", progress=False, num_threads=threads,
@@ -67,7 +66,7 @@ def _cfg(args, threads: int):
 def _worker(rank: int, world: int, port: int, out: str, threads: int, args) -> None:
     import torch.distributed as dist
 
-    from helpers.train import train
+    from helpers.training.train import train
 
     refs, queries = _data(args.objects, args.refs, args.queries)
     if world > 1:
@@ -125,7 +124,6 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--epochs >= 2, --steps >= 1 and --pairs >= 1 are needed (the first epoch is warm-up)")
     sys.path.insert(0, str(HERE))
     import torch
-
     from timing import log, source_hashes
 
     runs: dict[str, list[dict]] = {"A": [], "B": [], "C": []}
@@ -157,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         "weights_max_abs_diff_A_repeats": same_seed_a,
     }
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    from helpers.paths import portable_obj
+    from helpers.core.paths import portable_obj
 
     Path(args.out).write_text(json.dumps(portable_obj(res), indent=1) + "\n")
     log(f"B/A = {res['ratio_B_over_A']:.3f}; loss diff {loss_diff:.2e}; weights max diff {float(w.max()):.2e} "

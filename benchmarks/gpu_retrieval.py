@@ -11,7 +11,6 @@ import statistics
 import time
 
 import numpy as np
-
 from bench_train import monotone_readout  # the CPU benchmark's score readout, the same on the GPU
 from gpu_sections import Ctx, _log, cuda_mem, release_cuda
 
@@ -26,7 +25,7 @@ def _torch_bank_class():
     """
     import torch
 
-    from helpers.retrieval import ReferenceBank
+    from helpers.search.retrieval import ReferenceBank
 
     class TorchReferenceBank(ReferenceBank):
         def ref_feats(self, obj: int, idx: np.ndarray) -> torch.Tensor:
@@ -54,9 +53,10 @@ def bench_retrieval(ctx: Ctx, cap_s: float, size: int, out: dict) -> dict:
     """Fast vs greedy search over K x R synthetic float16 features held on the device."""
     import torch
 
-    from helpers.model import ModelConfig, OrientationNet
-    from helpers.retrieval import fast_search, greedy_search, model_scorer, search_all
-    from helpers.rotations import haar_uniform
+    from helpers.core.configs import ModelConfig
+    from helpers.core.rotations import haar_uniform
+    from helpers.net.model import OrientationNet
+    from helpers.search.retrieval import fast_search, greedy_search, model_scorer, search_all
 
     t_sec = time.perf_counter()
     stop_at = t_sec + cap_s
@@ -79,9 +79,9 @@ def bench_retrieval(ctx: Ctx, cap_s: float, size: int, out: dict) -> dict:
                     "random rotation of a random object plus N(0,1) noise, re-normalised, float32",
         "model": "random-init OrientationNet (seed 0), fusion MLP set to the monotone readout "
                  "tanh(3 * mean fused cosine) as benchmarks/bench.py; same operations and cost as a trained model",
-        "bank": "TorchReferenceBank: helpers.retrieval.ReferenceBank subclass overriding ref_feats/chunk with torch "
+        "bank": "TorchReferenceBank: helpers.search.retrieval.ReferenceBank subclass overriding ref_feats/chunk with torch "
                 "indexing (features stay on the device); search code unchanged",
-        "scorer": f"helpers.retrieval.model_scorer(model, {ctx.device!r}) (chunk 1024; returns CPU scores, i.e. syncs)",
+        "scorer": f"helpers.search.retrieval.model_scorer(model, {ctx.device!r}) (chunk 1024; returns CPU scores, i.e. syncs)",
         "fast_params": {"k_ac": k_ac, "fps_k": fps_k, "schedule": "converge", "top_anchors": 3, "group": 1024},
         "greedy_params": {"group": 1024}, "cap_s": cap_s, "cut_short": False})
     # ---- how many references fit

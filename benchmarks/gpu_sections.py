@@ -36,7 +36,7 @@ def _log(msg: str) -> None:
 
 def load_data(data_dir: Path) -> dict:
     """npz -> {"meta", "names", "refs", "train_q", "val_q", "clean_q"} (dicts of ObjectViews)."""
-    from helpers.views import ObjectViews
+    from helpers.core.views import ObjectViews
 
     path = data_dir / NPZ_NAME if data_dir.is_dir() else data_dir
     z = np.load(path, allow_pickle=False)
@@ -60,10 +60,8 @@ def load_data(data_dir: Path) -> dict:
 
 def build_train_config(P: dict, device: str, epochs: int, steps_per_epoch: int, image_size: int):
     """TrainConfig of the notebook parameters ``P``, as notebook 02's configuration cell builds it
-    (not imported from helpers.study, which needs the render stack and pandas)."""
-    from helpers.augment import AugmentConfig
-    from helpers.model import ModelConfig
-    from helpers.train import TrainConfig
+    (not imported from helpers.study.pipeline, which needs the render stack and pandas)."""
+    from helpers.core.configs import AugmentConfig, ModelConfig, TrainConfig
 
     sc = P["scales"]
     scales = "global" if str(sc).strip().lower() == "global" else tuple(int(x) for x in str(sc).split(",") if x.strip())
@@ -145,10 +143,10 @@ def release_cuda() -> None:
 # =========================================================================== sections
 
 def bench_train(ctx: Ctx, data: dict, P: dict, cap_s: float, out: dict) -> dict:
-    """helpers.train.train on the real data, paper config, in epochs of --epoch-steps steps (resume between)."""
+    """helpers.training.train.train on the real data, paper config, in epochs of --epoch-steps steps (resume between)."""
     import torch
 
-    import helpers.train as ht
+    import helpers.training.train as ht
 
     stop_at = time.perf_counter() + cap_s
     a = ctx.args
@@ -162,7 +160,7 @@ def bench_train(ctx: Ctx, data: dict, P: dict, cap_s: float, out: dict) -> dict:
     ht.plot_history = lambda history, path: Path(path)  # matplotlib may be absent; plotting is not training
     run_dir = Path(tempfile.mkdtemp(prefix="bench_gpu_train_"))
     out.update({
-        "what": "helpers.train.train(cfg, refs, train_queries, {}, {}, run_dir, resume=True) called once per epoch "
+        "what": "helpers.training.train.train(cfg, refs, train_queries, {}, {}, run_dir, resume=True) called once per epoch "
                 "with cfg.epochs = 1, 2, ...; validation off inside train(); checkpoints written each epoch as usual; "
                 "plot_history replaced by a no-op",
         "image_size": size, "objects": seen, "n_refs_per_object": len(refs[seen[0]]),
@@ -213,7 +211,7 @@ def bench_train(ctx: Ctx, data: dict, P: dict, cap_s: float, out: dict) -> dict:
                     "(train() records no per-step loss)."})
         if ctx.cuda:
             out["cuda_memory"] = cuda_mem()
-        out["helpers_render_imported"] = "helpers.render" in sys.modules  # by the in-plane augmentation
+        out["helpers_render_imported"] = "helpers.data.render" in sys.modules  # by the in-plane augmentation
         # One validate() call (not timed inside train): seen-object val queries vs the references
         # (all of them; 8 per object in --tiny).
         if data.get("val_q") and time.perf_counter() < stop_at:
@@ -235,16 +233,16 @@ def bench_train(ctx: Ctx, data: dict, P: dict, cap_s: float, out: dict) -> dict:
 
 
 def bench_train_step(ctx: Ctx, P: dict, cap_s: float, size: int, out: dict) -> dict:
-    """Bare helpers.train.train_step on random images already on the device (pure compute rate)."""
+    """Bare helpers.training.train.train_step on random images already on the device (pure compute rate)."""
     import torch
 
-    from helpers.model import OrientationNet
-    from helpers.rotations import haar_uniform
-    from helpers.train import train_step
+    from helpers.core.rotations import haar_uniform
+    from helpers.net.model import OrientationNet
+    from helpers.training.train import train_step
 
     stop_at = time.perf_counter() + cap_s
     a = ctx.args
-    out.update({"what": "helpers.train.train_step: encode 3B images (B queries, B positives, B random "
+    out.update({"what": "helpers.training.train.train_step: encode 3B images (B queries, B positives, B random "
                         "refs), B x 2B fusion scores with autograd, weighted infoNCE, backward, Adam",
                 "image_size": size, "by_batch": {}, "cut_short": False})
     batches = [int(b) for b in a.train_step_batches.split(",") if b.strip()]
@@ -288,7 +286,8 @@ def bench_encode(ctx: Ctx, data: dict, cap_s: float, size: int, out: dict) -> di
     """model.encode refs/s on real rendered references (repeated to fill the batch), eval + inference_mode."""
     import torch
 
-    from helpers.model import ModelConfig, OrientationNet, images_to_tensor
+    from helpers.core.configs import ModelConfig
+    from helpers.net.model import OrientationNet, images_to_tensor
 
     stop_at = time.perf_counter() + cap_s
     a = ctx.args
@@ -330,7 +329,7 @@ def bench_fusion(ctx: Ctx, cap_s: float, size: int, out: dict) -> dict:
     """model.score pair-scores/s with float16 references on the device; what-if: larger fusion blocks."""
     import torch
 
-    import helpers.model as hm
+    import helpers.net.model as hm
 
     stop_at = time.perf_counter() + cap_s
     a = ctx.args
@@ -350,7 +349,7 @@ def bench_fusion(ctx: Ctx, cap_s: float, size: int, out: dict) -> dict:
     out.update({"image_size": size, "C": c, "L": length, "reference_dtype": "float16",
                            "default_block_elements": getattr(hm, "_BLOCK_ELEMENTS", None),
                            "what": "model.score(q, r) under inference_mode, eval; r float16 on the device",
-                           "what_if": "helpers.model._BLOCK_ELEMENTS (references per product block = it / (C*X)) "
+                           "what_if": "helpers.net.model._BLOCK_ELEMENTS (references per product block = it / (C*X)) "
                                       "set in this process only, restored afterwards; scores compared to default",
                            "variants": {}, "cut_short": False})
     ref_scores: dict[str, torch.Tensor] = {}

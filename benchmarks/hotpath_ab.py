@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """A/B evidence for two proposed hot-path changes (nothing in src/ is modified).
 
-1. ``helpers.model._fuse_block`` (the Q=1 path every retrieval uses): the
+1. ``helpers.net.model._fuse_block`` (the Q=1 path every retrieval uses): the
    logits ``torch.matmul(w, prod)`` with w (K, C) and prod (Rb, C, X) is
    folded by torch into one skinny ``mm`` (Rb*X, C) @ (C, K) on a transposed
    view when Rb = 1 (every level-32 block at 128 px) and is slow there.
@@ -11,7 +11,7 @@
    * ``mulsum``: weighted sum as ``(prod * a[:, None]).sum(-1)`` instead of
      ``bmm(prod, a[..., None])``;
    * both.
-2. ``helpers.retrieval``: ``greedy_search`` and ``ReferenceBank.ref_feats``
+2. ``helpers.search.retrieval``: ``greedy_search`` and ``ReferenceBank.ref_feats``
    copy float16 reference features to float32 in numpy before scoring; the
    model's ``score`` already promotes float16 blocks inside its product.
    Variant: hand the float16 chunk to the scorer.
@@ -35,9 +35,10 @@ def main() -> int:
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import bench
-    import helpers.model as hm
-    import helpers.retrieval as hr
-    from helpers.rotations import haar_uniform
+
+    import helpers.net.model as hm
+    import helpers.search.retrieval as hr
+    from helpers.core.rotations import haar_uniform
 
     torch.set_num_threads(2)
     orig_fb = hm._fuse_block

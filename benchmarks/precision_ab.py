@@ -1,6 +1,6 @@
 """bf16 autocast (B) against float32 (A) for training, in one run on one machine.
 
-1. Speed: the real training step (``helpers.train.train_step``: encode 3B images, B x 2B fusion
+1. Speed: the real training step (``helpers.training.train.train_step``: encode 3B images, B x 2B fusion
    scores, weighted infoNCE, backward, Adam) at 64 px, A and B interleaved, median of
    ``--repeats`` timings each; images/s and the ratio B/A.
 2. Fidelity: split #1's model trained twice on the quick benchmark's data (same seed, same
@@ -35,9 +35,10 @@ def speed(repeats: int, batch: int = 16, size: int = 64) -> dict:
     import numpy as np
     import torch
 
-    from helpers.model import ModelConfig, OrientationNet
-    from helpers.rotations import haar_uniform
-    from helpers.train import train_step
+    from helpers.core.configs import ModelConfig
+    from helpers.core.rotations import haar_uniform
+    from helpers.net.model import OrientationNet
+    from helpers.training.train import train_step
 
     torch.manual_seed(0)
     model = OrientationNet(ModelConfig(image_size=size)).train()
@@ -64,10 +65,8 @@ def speed(repeats: int, batch: int = 16, size: int = 64) -> dict:
 
 def fidelity(steps: int, tiny: bool) -> dict:
     """Two trainings of split #1 (fp32, bf16): per-epoch loss, validation, images/s, and the verdict."""
-    from helpers.augment import AugmentConfig
-    from helpers.model import ModelConfig
-    from helpers.study import DataConfig, prepare_data, train_or_load
-    from helpers.train import TrainConfig
+    from helpers.core.configs import AugmentConfig, DataConfig, ModelConfig, TrainConfig
+    from helpers.study.pipeline import prepare_data, train_or_load
 
     if tiny:
         dcfg = DataConfig(render_size=64, n_references=8, n_train_queries=4, n_val_queries=2, n_test_queries=1,
@@ -76,7 +75,7 @@ def fidelity(steps: int, tiny: bool) -> dict:
     else:
         dcfg = DataConfig(n_references=512, n_train_queries=160, n_val_queries=24, n_test_queries=100)
         per_epoch, val_refs = 50, 256
-    from helpers.manifest import load_manifest
+    from helpers.data.manifest import load_manifest
 
     data = prepare_data(dcfg, objects=load_manifest().seen_objects(1), occluded=False, test=False)
     epochs = max(1, steps // per_epoch)
@@ -111,15 +110,15 @@ def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
     import torch
 
-    from helpers.precision import describe, resolve_precision
-    from helpers.runinfo import git_revision, package_versions
+    from helpers.core.precision import describe, resolve_precision
+    from helpers.study.provenance import git_revision, package_versions
 
     cpu = torch.device("cpu")
     out = {"git": git_revision(), "packages": package_versions(("torch", "numpy")), "threads": torch.get_num_threads(),
            "cpu": describe(cpu), "auto_picks": resolve_precision("auto", cpu),
            "speed": speed(a.repeats), "fidelity": fidelity(a.steps, a.tiny)}
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    from helpers.paths import portable_obj
+    from helpers.core.paths import portable_obj
 
     Path(a.out).write_text(json.dumps(portable_obj(out), indent=1))
     s, f = out["speed"], out["fidelity"]

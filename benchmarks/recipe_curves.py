@@ -29,10 +29,8 @@ VAL_REFS = 256
 
 
 def run(name: str, overrides: dict) -> dict:
-    from helpers.augment import AugmentConfig
-    from helpers.model import ModelConfig
-    from helpers.study import DataConfig, prepare_data, train_or_load
-    from helpers.train import TrainConfig
+    from helpers.core.configs import AugmentConfig, DataConfig, ModelConfig, TrainConfig
+    from helpers.study.pipeline import prepare_data, train_or_load
 
     data = prepare_data(DataConfig(**DATA))
     base = {"epochs": 6, "steps_per_epoch": 50, "batch_size": 16, "val_every": 2, "progress": True,
@@ -77,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         for name in args.only or RECIPES:
             results[name] = run(name, RECIPES[name])
-    from helpers.paths import portable_obj
+    from helpers.core.paths import portable_obj
 
     out.write_text(json.dumps(portable_obj(results), indent=1) + "\n")
     print(json.dumps({k: v["curve"][-1] for k, v in results.items()}, indent=1))

@@ -74,15 +74,24 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
     import torch
-
-    import helpers.model as hm
-    import helpers.retrieval as hr
-    from bench_retrieval import (C2F_COARSE_K, C2F_HALVING_REFINE_OBJECTS, C2F_REFINE_OBJECTS, PAPER_FPS_K,
-                                 PAPER_K_AC, PAPER_OBJECTS, PAPER_REFS, _smooth_features, write_synthetic_bank)
+    from bench_retrieval import (
+        C2F_COARSE_K,
+        C2F_HALVING_REFINE_OBJECTS,
+        C2F_REFINE_OBJECTS,
+        PAPER_FPS_K,
+        PAPER_K_AC,
+        PAPER_OBJECTS,
+        PAPER_REFS,
+        _smooth_features,
+        write_synthetic_bank,
+    )
     from bench_train import _model
-    from helpers import fusion_kernel
-    from helpers.rotations import haar_uniform
     from timing import Probe, log, source_hashes
+
+    import helpers.net.model as hm
+    import helpers.search.retrieval as hr
+    from helpers.core.rotations import haar_uniform
+    from helpers.net import fusion_kernel
 
     if fusion_kernel.get() is None:
         raise SystemExit(f"rows_ab: the fusion kernel is unavailable ({fusion_kernel.status()['reason']})")
@@ -155,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     for m in methods:
         out["methods"][m]["greedy_over_B"] = g["B_s_per_query_median"] / out["methods"][m]["B_s_per_query_median"]
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    from helpers.paths import portable_obj
+    from helpers.core.paths import portable_obj
 
     Path(args.out).write_text(json.dumps(portable_obj(out), indent=2) + "\n")
     log(f"wrote {args.out}")

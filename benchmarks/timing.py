@@ -227,7 +227,7 @@ MEASURED_MODULES = ("model", "model_config", "fusion_kernel", "retrieval", "bank
 def source_hashes() -> dict:
     """sha256 of the helpers modules whose speed is measured (the working tree may differ from git HEAD)."""
     import helpers
-    from helpers.fileio import sha256_file
+    from helpers.core.fileio import sha256_file
 
     root = Path(helpers.__file__).parent
     return {m: sha256_file(root / f"{m}.py")[:16] for m in MEASURED_MODULES if (root / f"{m}.py").exists()}

@@ -42,4 +42,4 @@ if [ "$want" != "$have" ]; then
   .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e .
   echo "$want" > .venv/.setup-stamp
 fi
-.venv/bin/python -c "import helpers.manifest as m; m.verify(); print('setup: ok, manifest verified')"
+.venv/bin/python -c "import helpers.data.manifest as m; m.verify(); print('setup: ok, manifest verified')"

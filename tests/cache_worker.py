@@ -17,13 +17,13 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from helpers.datasets import ViewSetSpec, render_sets
-from helpers.features import FeatureCache
-from helpers.manifest import load_manifest
-from helpers.model import ModelConfig, OrientationNet
-from helpers.render import RenderConfig
-from helpers.study import DataConfig, prepare_data, train_or_load
-from helpers.train import TrainConfig, read_checkpoint
+from helpers.core.configs import DataConfig, ModelConfig, RenderConfig, TrainConfig
+from helpers.data.datasets import ViewSetSpec, render_sets
+from helpers.data.manifest import load_manifest
+from helpers.net.model import OrientationNet
+from helpers.search.features import FeatureCache
+from helpers.study.pipeline import prepare_data, train_or_load
+from helpers.training.train import read_checkpoint
 
 RC = RenderConfig(size=64, render_size=64)
 SET = ViewSetSpec("duck", "reference", 300, 0, RC)  # 3 chunks
@@ -65,9 +65,9 @@ def build(kind: str, cache: str) -> str:
 
 def _report_builds() -> None:
     """Print "building" whenever this process does the work of an entry (not when it loads one)."""
-    import helpers.datasets as ds
-    import helpers.features as ft
-    import helpers.study as st
+    import helpers.data.datasets as ds
+    import helpers.search.features as ft
+    import helpers.study.pipeline as st
 
     def wrap(owner, name):
         inner = getattr(owner, name)

@@ -11,7 +11,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 @pytest.fixture(scope="session")
 def manifest():
-    from helpers.manifest import load_manifest
+    from helpers.data.manifest import load_manifest
 
     return load_manifest()
 

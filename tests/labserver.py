@@ -7,6 +7,7 @@ a temporary folder), waits for it (bounded) and always stops it with its process
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import secrets
 import signal
@@ -14,7 +15,6 @@ import socket
 import subprocess
 import sys
 import time
-import json
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from helpers.baselines import HogModel, hog_descriptor
-from helpers.features import FeatureCache, model_fingerprint
-from helpers.retrieval import ReferenceBank, greedy_search, model_scorer
-from helpers.rotations import haar_uniform
-from helpers.views import ObjectViews
+from helpers.core.rotations import haar_uniform
+from helpers.core.views import ObjectViews
+from helpers.evaluation.baselines import HogModel, hog_descriptor
+from helpers.search.features import FeatureCache, model_fingerprint
+from helpers.search.retrieval import ReferenceBank, greedy_search, model_scorer
 
 S = 64
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import bop
-from helpers.rotations import geodesic_deg, haar_uniform
+from helpers.core.rotations import geodesic_deg, haar_uniform
+from helpers.data import bop
 
 H, W = 120, 160
 
@@ -150,7 +150,7 @@ def test_load_views(root):
     assert v.kind == "query" and v.images.shape == (2, 24, 24, 3) and v.masks.shape == (2, 24, 24)
     assert v.rotations.dtype == np.float32
     # Continuous symmetry kept exact by default; discretised on request (the old behaviour).
-    from helpers.rotations import Symmetries
+    from helpers.core.rotations import Symmetries
     assert isinstance(v.symmetries, Symmetries) and v.symmetries.axes.shape == (1, 3)
     assert bop.load_bop_views(root, "test", 2, size=24, step_deg=10.0).symmetries.shape == (36, 3, 3)
     assert v.meta["instances"] == [(1, 0, 1), (1, 3, 0)]

@@ -1,15 +1,15 @@
-"""BOP export of the T-LESS-like set and of predictions, read back with helpers.bop (round trip)."""
+"""BOP export of the T-LESS-like set and of predictions, read back with helpers.data.bop (round trip)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from helpers.baselines import HogModel
-from helpers.bop import iter_scene_instances, load_bop_views, load_models_info
-from helpers.bop_export import export_tless_like, read_results_csv, tless_like_results, write_results_csv
-from helpers.tless import TlessConfig, load_tless
-from helpers.tless_protocol import evaluate_tless
+from helpers.data.bop import iter_scene_instances, load_bop_views, load_models_info
+from helpers.data.bop_export import export_tless_like, read_results_csv, tless_like_results, write_results_csv
+from helpers.data.tless import TlessConfig, load_tless
+from helpers.evaluation.baselines import HogModel
+from helpers.study.tless_protocol import evaluate_tless
 
 pytestmark = pytest.mark.gl
 
@@ -56,9 +56,10 @@ def test_predictions_round_trip_through_the_results_csv(exported, tmp_path):
 
 
 def test_a_bop_dataset_on_disk_is_scored_the_same_way(exported):
-    """The exported set read as a real BOP dataset (helpers.tless.load_bop_tless): its queries, and err_vsd from
+    """The exported set read as a real BOP dataset (helpers.data.tless.load_bop_tless): its queries, and err_vsd from
     its depth PNGs, at its cameras and poses: 0 for the true rotations, as on the rendered set."""
-    from helpers.tless import load_bop_tless, vsd_errors
+    from helpers.data.tless import load_bop_tless
+    from helpers.evaluation.tless_scoring import vsd_errors
 
     ts, root, _ = exported
     bop = load_bop_tless(root, split="test", size=64, n_references=8, progress=False)
@@ -79,7 +80,7 @@ def test_notebook_09_runs_on_a_bop_dataset_on_disk(exported, tmp_path):
 
     import papermill as pm
 
-    from helpers.params import NOTEBOOK_DIR
+    from helpers.study.parameters import NOTEBOOK_DIR
 
     _, root, cache = exported
     out = tmp_path / "out"

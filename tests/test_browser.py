@@ -16,9 +16,9 @@ import shutil
 from pathlib import Path
 
 import pytest
-
-from helpers.params import NOTEBOOK_DIR
 from labserver import running_lab
+
+from helpers.study.parameters import NOTEBOOK_DIR
 
 RUN_TIMEOUT_MS = 600_000  # the whole smoke notebook on a busy 2-core machine, renders included
 STEP_TIMEOUT_MS = 120_000  # one slider move: one query's scores and figure

@@ -1,4 +1,4 @@
-"""``python -m helpers.byo MESH CROP``: a rotation, its quaternion, the score and the next best."""
+"""``python -m helpers.study.byo MESH CROP``: a rotation, its quaternion, the score and the next best."""
 
 import json
 
@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from helpers import byo
-from helpers.render import RenderConfig
-from helpers.rotations import geodesic_deg
+from helpers.core.configs import RenderConfig
+from helpers.core.rotations import geodesic_deg
+from helpers.study import byo
 
 pytestmark = pytest.mark.gl
 

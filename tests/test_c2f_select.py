@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from helpers.c2f_select import c2f_candidates, select_c2f
-from helpers.retrieval import ReferenceBank, search_all
-from helpers.rotations import haar_uniform
 from test_retrieval import cosine_scorer
+
+from helpers.core.rotations import haar_uniform
+from helpers.search.c2f_select import c2f_candidates, select_c2f
+from helpers.search.retrieval import ReferenceBank, search_all
 
 K, R, K_AC = 5, 400, 64
 BASE = {"k_ac": K_AC, "fps_k": 16, "schedule": "converge"}

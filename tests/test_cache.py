@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import cache as cache_cli
-from helpers.fileio import DamagedEntry
-from helpers.locks import LockTimeout, entry_lock, is_locked
+from helpers.core.fileio import DamagedEntry
+from helpers.core.locks import LockTimeout, entry_lock, is_locked
+from helpers.study import cache as cache_cli
 
 pytestmark = pytest.mark.gl
 WORKER = Path(__file__).with_name("cache_worker.py")
@@ -147,7 +147,7 @@ def test_damaged_checkpoint_is_named_then_verify_finds_it_and_prune_removes_it(r
 
 
 def test_prune_leaves_what_a_live_process_builds_and_removes_unfinished_and_stale(tmp_path, capsys):
-    from helpers.fileio import atomic_save_npy, atomic_write_json, sha256_file
+    from helpers.core.fileio import atomic_save_npy, atomic_write_json, sha256_file
 
     cache = tmp_path / "cache"
     live, dead = cache / "renders" / "duck" / "reference-live", cache / "renders" / "duck" / "reference-dead"
@@ -161,7 +161,7 @@ def test_prune_leaves_what_a_live_process_builds_and_removes_unfinished_and_stal
     (old / ".images.npy.x1.tmp").write_bytes(b"half")
     ten_days_ago = time.time() - 10 * 86400
     os.utime(old / "meta.json", (ten_days_ago, ten_days_ago))
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from helpers.locks import entry_lock\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from helpers.core.locks import entry_lock\n"
                                f"with entry_lock({str(live)!r}, 'test'):\n print('held', flush=True); time.sleep(60)"],
                               stdout=subprocess.PIPE, text=True, env=ENV)
     try:
@@ -182,7 +182,7 @@ def test_prune_leaves_what_a_live_process_builds_and_removes_unfinished_and_stal
 
 def test_waiting_for_a_live_builder_says_so_and_has_a_limit(tmp_path, capsys):
     entry = tmp_path / "entry"
-    holder = subprocess.Popen([sys.executable, "-c", "import time; from helpers.locks import entry_lock\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import time; from helpers.core.locks import entry_lock\n"
                                f"with entry_lock({str(entry)!r}, 'test'):\n print('held', flush=True); time.sleep(60)"],
                               stdout=subprocess.PIPE, text=True, env=ENV)
     try:
@@ -204,7 +204,7 @@ def test_waiting_for_a_live_builder_says_so_and_has_a_limit(tmp_path, capsys):
 @pytest.mark.slow
 def test_two_smoke_runners_on_one_cache_both_succeed(tmp_path):
     env = {**ENV, "HELPERS_CACHE_DIR": str(tmp_path / "cache")}
-    cmd = [sys.executable, "-m", "helpers.runner", "smoke", "--no-html"]
+    cmd = [sys.executable, "-m", "helpers.study.runner", "smoke", "--no-html"]
     t0 = time.monotonic()
     procs = [subprocess.Popen(cmd + ["--reports", str(tmp_path / f"reports{k}")], env=env, stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT, text=True) for k in range(2)]
@@ -243,7 +243,7 @@ def test_no_committed_result_holds_a_machine_path():
 
 
 def test_portable_names_paths_by_their_role(monkeypatch, tmp_path):
-    from helpers.paths import REPO_ROOT, portable, portable_obj
+    from helpers.core.paths import REPO_ROOT, portable, portable_obj
 
     monkeypatch.setenv("HELPERS_CACHE_DIR", str(tmp_path / "c"))
     assert portable(tmp_path / "c" / "runs" / "x" / "best.pt") == "<cache>/runs/x/best.pt"

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from helpers.claims import accuracy_ci, build_claims, diff_verdict, paired_diff_ci, write_claims
+from helpers.evaluation.claims import accuracy_ci, build_claims, diff_verdict, paired_diff_ci, write_claims
 
 KEYS = {"id", "claim", "paper", "ours", "ci95", "verdict"}
 

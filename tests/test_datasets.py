@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-import helpers.datasets as ds
-from helpers.datasets import ViewSetSpec, render_sets
-from helpers.render import QueryStyle, RenderConfig
+import helpers.data.datasets as ds
+from helpers.core.configs import QueryStyle, RenderConfig
+from helpers.data.datasets import ViewSetSpec, render_sets
 
 pytestmark = pytest.mark.gl
 RC = RenderConfig(size=32, render_size=64)

@@ -9,10 +9,10 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
-from helpers.model import ModelConfig
-from helpers.rotations import haar_uniform
-from helpers.train import TrainConfig, train
-from helpers.views import ObjectViews
+from helpers.core.configs import ModelConfig, TrainConfig
+from helpers.core.rotations import haar_uniform
+from helpers.core.views import ObjectViews
+from helpers.training.train import train
 
 SIZE = 64
 TOL = 1e-5  # float32 sums in another order (gathered shares, averaged gradients)
@@ -77,7 +77,7 @@ def test_two_gloo_processes_train_like_one(tmp_path):
 
 
 def test_global_batch_must_split_evenly(tmp_path, monkeypatch):
-    import helpers.train as T
+    import helpers.training.train as T
 
     monkeypatch.setattr(T, "distributed_world", lambda: (0, 4))
     refs, queries = _data()
@@ -92,7 +92,7 @@ def _grad_worker(rank: int, world: int, port: int, out: str) -> None:
     dist.init_process_group("gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=world)
     try:
         model, batch = _grad_setup()
-        from helpers.distributed import sharded_encoder
+        from helpers.training.distributed import sharded_encoder
         net = DistributedDataParallel(model)
         _loss(model, batch, sharded_encoder(net, rank, world)).backward()
         if rank == 0:
@@ -102,9 +102,9 @@ def _grad_worker(rank: int, world: int, port: int, out: str) -> None:
 
 
 def _grad_setup():
-    from helpers.augment import AugmentConfig
-    from helpers.model import OrientationNet
-    from helpers.train import _Batcher
+    from helpers.core.configs import AugmentConfig
+    from helpers.net.model import OrientationNet
+    from helpers.training.train import _Batcher
 
     torch.manual_seed(5)
     model = OrientationNet(_cfg().model)
@@ -114,8 +114,8 @@ def _grad_setup():
 
 
 def _loss(model, batch, encode):
-    from helpers.losses import pair_weights, weighted_info_nce
-    from helpers.model import images_to_tensor
+    from helpers.net.model import images_to_tensor
+    from helpers.training.losses import pair_weights, weighted_info_nce
 
     imgs, q_obj, q_rot, r_obj, r_rot = batch
     feats = encode(images_to_tensor(imgs))
@@ -144,7 +144,7 @@ def test_torchrun_launcher_trains_the_smoke_model_on_two_cpu_processes(tmp_path)
 
     env = {**os.environ, "HELPERS_CACHE_DIR": str(tmp_path / "cache"), "OMP_NUM_THREADS": "1"}
     r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2",
-                        f"--master_port={_free_port()}", "-m", "helpers.ddp_train", "--preset", "smoke"],
+                        f"--master_port={_free_port()}", "-m", "helpers.study.ddp_train", "--preset", "smoke"],
                        env=env, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-4000:]
     assert "[ddp_train] 2 processes (gloo)" in r.stdout
@@ -154,7 +154,7 @@ def test_torchrun_launcher_trains_the_smoke_model_on_two_cpu_processes(tmp_path)
 
 
 def test_launcher_refuses_to_run_without_torchrun(capsys, monkeypatch):
-    from helpers import ddp_train
+    from helpers.study import ddp_train
 
     monkeypatch.delenv("RANK", raising=False)
     assert ddp_train.main(["--preset", "smoke"]) == 2

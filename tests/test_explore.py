@@ -1,4 +1,4 @@
-"""The explorer's steps (helpers.explore) and panels (helpers.explore_ui) on a tiny untrained network."""
+"""The explorer's steps (helpers.study.explore) and panels (helpers.study.explore_ui) on a tiny untrained network."""
 
 from __future__ import annotations
 
@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 import torch
 
-from helpers.bank import ReferenceBank
-from helpers.explore import Explorer, figure_png, inspect_query, query_figure
-from helpers.explore_ui import byo_panel, query_panel
-from helpers.model import ModelConfig, OrientationNet
-from helpers.param_values import check_values
-from helpers.params import ParameterError, declared_parameters, notebook_path
-from helpers.rotations import haar_uniform
-from helpers.study import encode_queries
-from helpers.views import ObjectViews
+from helpers.core.configs import ModelConfig
+from helpers.core.rotations import haar_uniform
+from helpers.core.views import ObjectViews
+from helpers.net.model import OrientationNet
+from helpers.search.bank import ReferenceBank
+from helpers.study.explore import Explorer, figure_png, inspect_query, query_figure
+from helpers.study.explore_ui import byo_panel, query_panel
+from helpers.study.parameters import ParameterError, check_values, declared_parameters, notebook_path
+from helpers.study.pipeline import encode_queries
 
 
 @pytest.fixture(scope="module")

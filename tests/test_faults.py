@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import byo, runner
-from helpers.features import FeatureCache
-from helpers.model import ModelConfig, OrientationNet
-from helpers.param_values import check_values
-from helpers.params import ParameterError, check_parameters
-from helpers.views import ObjectViews
+from helpers.core.configs import ModelConfig
+from helpers.core.views import ObjectViews
+from helpers.net.model import OrientationNet
+from helpers.search.features import FeatureCache
+from helpers.study import byo, runner
+from helpers.study.parameters import ParameterError, check_parameters, check_values
 
 # ------------------------------------------------------------------ parameter values and the runner
 

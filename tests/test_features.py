@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from helpers.features import FeatureCache, encode_views, model_fingerprint
-from helpers.views import ObjectViews
+from helpers.core.views import ObjectViews
+from helpers.search.features import FeatureCache, encode_views, model_fingerprint
 
 
 class FakeModel(torch.nn.Module):

@@ -15,11 +15,11 @@ import uuid
 from pathlib import Path
 
 import pytest
-
-from helpers.params import NOTEBOOK_DIR
-from helpers.paths import REPO_ROOT
 from labserver import get as _get
 from labserver import running_lab
+
+from helpers.core.paths import REPO_ROOT
+from helpers.study.parameters import NOTEBOOK_DIR
 
 CELL_TIMEOUT_S = 180
 

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from helpers import fusion_kernel
+from helpers.net import fusion_kernel
 
 
 def _dead_pid() -> int:
@@ -55,7 +55,7 @@ def test_live_builder_is_waited_for_with_messages_then_given_up(tmp_path):
 
 
 def _run_get(env: dict, timeout: float = 240) -> subprocess.CompletedProcess:
-    code = ("import warnings, time; warnings.simplefilter('always'); from helpers import fusion_kernel as f; "
+    code = ("import warnings, time; warnings.simplefilter('always'); from helpers.net import fusion_kernel as f; "
             "t=time.monotonic(); m=f.get(); print('MODULE', m is not None, round(time.monotonic()-t, 1)); "
             "print('REASON', f.status()['reason'])")
     return subprocess.run([sys.executable, "-c", code], env={**os.environ, **env}, capture_output=True, text=True,

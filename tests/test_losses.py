@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from helpers.losses import WEIGHT_FLOOR, pair_weights, weighted_info_nce
-from helpers.rotations import haar_uniform, rot_z
+from helpers.core.rotations import haar_uniform, rot_z
+from helpers.training.losses import WEIGHT_FLOOR, pair_weights, weighted_info_nce
 
 S = np.array([[0.5, 0.1, -0.2, 0.3],
               [0.0, 0.4, 0.2, -0.1]])

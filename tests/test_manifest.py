@@ -3,8 +3,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from helpers.manifest import ManifestError, load_manifest, verify, verify_file
-from helpers.meshes import load_object
+from helpers.data.manifest import ManifestError, load_manifest, verify, verify_file
+from helpers.data.meshes import load_object
 
 
 def test_manifest_has_the_benchmark(manifest):
@@ -81,7 +81,7 @@ def test_meshes_are_normalised(manifest):
 
 
 def test_corrupt_mesh_file(tmp_path):
-    from helpers.meshes import load_mesh_file
+    from helpers.data.meshes import load_mesh_file
 
     p = tmp_path / "broken.obj"
     p.write_text("this is not a mesh\n")

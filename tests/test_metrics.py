@@ -5,8 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers.metrics import Record, evaluate_predictions, group_by_split, per_query_table, rotation_errors_deg
-from helpers.rotations import discrete_symmetries_from_axis, haar_uniform, rot_z
+from helpers.core.rotations import discrete_symmetries_from_axis, haar_uniform, rot_z
+from helpers.evaluation.metrics import (
+    Record,
+    evaluate_predictions,
+    group_by_split,
+    per_query_table,
+    rotation_errors_deg,
+)
 
 
 def test_identity_and_known_angle():
@@ -89,7 +95,7 @@ def _pq(ok: list[bool], objs: list[str]) -> "pd.DataFrame":
 
 
 def test_paired_difference_separates_signal_from_noise():
-    from helpers.metrics import paired_difference
+    from helpers.evaluation.metrics import paired_difference
 
     objs = ["a"] * 50 + ["b"] * 50
     base = [False] * 100

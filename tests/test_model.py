@@ -5,9 +5,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from helpers.device import resolve_device
-from helpers.model import (ModelConfig, OrientationNet, count_parameters, images_to_tensor, level_shapes,
-                           preprocess)
+from helpers.core.configs import ModelConfig, level_shapes
+from helpers.core.device import resolve_device
+from helpers.net.model import OrientationNet, count_parameters, images_to_tensor, preprocess
 
 
 def _model(**kw) -> OrientationNet:
@@ -258,7 +258,7 @@ def test_encode_is_differentiable_and_dropout_only_in_train():
 # ------------------------------------------------------------- fused CPU kernel
 
 def _kernel_or_skip():
-    from helpers import fusion_kernel
+    from helpers.net import fusion_kernel
 
     if fusion_kernel.get() is None:
         pytest.skip(f"fusion kernel unavailable: {fusion_kernel.status()['reason']}")
@@ -304,7 +304,7 @@ def test_kernel_results_do_not_depend_on_threads():
 
 
 def test_kernel_not_used_with_autograd_and_can_be_disabled(monkeypatch):
-    from helpers import fusion_kernel
+    from helpers.net import fusion_kernel
 
     model = _model(image_size=64)
     q, r = _feats(model, 1, seed=11), _feats(model, 3, seed=12)
@@ -351,7 +351,7 @@ def test_score_rows_equals_scoring_the_gathered_rows(fusion, scales, backend):
 
 def test_kernel_all_levels_equals_one_level_at_a_time():
     """fuse_levels (all levels, rows read in place) == fuse level by level on the gathered rows."""
-    from helpers import fusion_kernel
+    from helpers.net import fusion_kernel
 
     _kernel_or_skip()
     kernel = fusion_kernel.get()

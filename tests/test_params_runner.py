@@ -2,9 +2,15 @@ import json
 
 import pytest
 
-from helpers.params import (ParameterError, check_mapping, check_parameters, declared_parameters, notebook_path,
-                            parameters_source)
-from helpers.runner import notebooks, preset_parameters
+from helpers.study.parameters import (
+    ParameterError,
+    check_mapping,
+    check_parameters,
+    declared_parameters,
+    notebook_path,
+    parameters_source,
+)
+from helpers.study.runner import notebooks, preset_parameters
 
 
 def test_every_notebook_has_a_literal_parameters_cell():
@@ -31,7 +37,7 @@ def test_papermill_sees_every_declared_parameter():
 
 
 def test_notebooks_are_committed_without_outputs():
-    from helpers.params import NOTEBOOK_DIR
+    from helpers.study.parameters import NOTEBOOK_DIR
 
     for p in NOTEBOOK_DIR.glob("*.ipynb"):
         nb = json.loads(p.read_text())
@@ -72,7 +78,7 @@ def test_all_presets_validate_and_bad_preset_is_refused(tmp_path, monkeypatch):
             assert p["out_dir"] == f"reports/{preset}/{n}"
     with pytest.raises(ParameterError, match="preset must be one of"):
         preset_parameters("huge", "02_train")
-    import helpers.runner as r
+    import helpers.study.runner as r
 
     (tmp_path / "quick").mkdir()
     (tmp_path / "quick" / "02_train.yaml").write_text("epochs: ten\n")
@@ -85,7 +91,7 @@ def test_all_presets_validate_and_bad_preset_is_refused(tmp_path, monkeypatch):
 def test_papermill_run_with_a_wrong_parameter_fails_clearly(tmp_path):
     import papermill as pm
 
-    from helpers.params import notebook_path
+    from helpers.study.parameters import notebook_path
 
     with pytest.raises(pm.PapermillExecutionError, match="unknown parameter.*n_referencez"):
         pm.execute_notebook(str(notebook_path("01_render")), str(tmp_path / "o.ipynb"),

@@ -1,4 +1,4 @@
-"""The T-LESS-like parts (helpers.parts): reproducible files, true symmetries, clear errors."""
+"""The T-LESS-like parts (helpers.data.parts): reproducible files, true symmetries, clear errors."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import trimesh
 import yaml
 from scipy.spatial import cKDTree
 
-from helpers.bop import symmetry_rotations
-from helpers.fileio import sha256_file
-from helpers.manifest import ManifestError, load_manifest
-from helpers.meshes import mesh_diameter
-from helpers.parts import PARTS, build_part, load_part, part_file, spec
+from helpers.core.fileio import sha256_file
+from helpers.data.bop import symmetry_rotations
+from helpers.data.manifest import ManifestError, load_manifest
+from helpers.data.meshes import mesh_diameter
+from helpers.data.parts import PARTS, build_part, load_part, part_file, spec
 
 
 def _surface_gap_mm(mesh: trimesh.Trimesh, R: np.ndarray) -> float:

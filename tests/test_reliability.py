@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import fileio
-from helpers.byo import load_query_image
-from helpers.features import FeatureCache
-from helpers.views import ObjectViews
+from helpers.core import fileio
+from helpers.core.views import ObjectViews
+from helpers.search.features import FeatureCache
+from helpers.study.byo import load_query_image
 
 
 def _enospc(*_a, **_k):
@@ -98,7 +98,7 @@ def test_non_image_query_is_refused_with_its_name(tmp_path):
 
 
 def test_checkpoint_write_on_full_disk_keeps_last_checkpoint(tmp_path, monkeypatch):
-    from helpers.train import _atomic_torch_save
+    from helpers.training.train import _atomic_torch_save
 
     path = tmp_path / "last.pt"
     _atomic_torch_save({"epoch": 3}, path)
@@ -114,7 +114,7 @@ def test_smoke_preset_is_deterministic(tmp_path):
     """Two runs of notebook 02 (smoke preset) from empty caches give identical metrics (CPU, same seed)."""
     import papermill as pm
 
-    from helpers.params import notebook_path
+    from helpers.study.parameters import notebook_path
 
     runs = []
     for k in range(2):

@@ -3,9 +3,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers.meshes import ObjectMesh, mesh_diameter
-from helpers.render import QueryStyle, RenderConfig, add_occluder, render_query, render_raw, render_reference
-from helpers.rotations import haar_uniform, inplane_rotate_label
+from helpers.core.configs import QueryStyle, RenderConfig
+from helpers.core.rotations import haar_uniform, inplane_rotate_label
+from helpers.data.gl import render_raw
+from helpers.data.meshes import ObjectMesh, mesh_diameter
+from helpers.data.render import add_occluder, render_query, render_reference
 
 pytestmark = pytest.mark.gl
 

@@ -2,8 +2,8 @@ import json
 
 import pytest
 
-from helpers.report import build_report
-from helpers.runner import run
+from helpers.study.report import build_report
+from helpers.study.runner import run
 
 
 @pytest.mark.slow
@@ -51,7 +51,7 @@ def test_report_states_noise_of_claims(tmp_path):
 def test_tables_format_numbers_by_magnitude():
     import pandas as pd
 
-    from helpers.report import _md
+    from helpers.study.report import _md
 
     df = pd.DataFrame([{"refs": 32.0, "rot_acc": 4.1666, "s/query": 0.0213, "split": "#1", "ok": True},
                        {"refs": 512.0, "rot_acc": 8.3, "s/query": 0.61, "split": "mean", "ok": False}])

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from helpers.retrieval import (ReferenceBank, authors_sizes, fast_search, greedy_search, model_scorer,
-                               search_all)
-from helpers.rotations import geodesic_deg, haar_uniform, nearest
+from helpers.core.rotations import geodesic_deg, haar_uniform, nearest
+from helpers.search.retrieval import ReferenceBank, authors_sizes, fast_search, greedy_search, model_scorer, search_all
 
 
 def cosine_scorer(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
@@ -271,7 +270,8 @@ def test_coarse_to_fine_halving_rounds():
 
 def test_row_indexed_scoring_reads_the_bank_in_place_and_changes_nothing(tmp_path):
     """A model scorer with ``rows`` scores a float16 memmap bank where it lies: same predictions, no copies."""
-    from helpers.model import ModelConfig, OrientationNet
+    from helpers.core.configs import ModelConfig
+    from helpers.net.model import OrientationNet
 
     torch.manual_seed(0)
     model = OrientationNet(ModelConfig(image_size=64, scales=(16, 13))).eval()

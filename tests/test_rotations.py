@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from helpers import rotations as rot
+from helpers.core import rotations as rot
 
 
 def test_haar_uniform_is_orthonormal_and_deterministic():
@@ -43,22 +43,6 @@ def test_nearest_matches_bruteforce():
     np.testing.assert_allclose(ang, P.min(1), atol=1e-6)
 
 
-def test_fps_spreads_points():
-    R = rot.haar_uniform(4000, seed=0)
-    idx = rot.farthest_point_sampling(R, 64)
-    assert len(set(idx.tolist())) == 64
-    fps_min = rot.pairwise_geodesic(R[idx], R[idx])[~np.eye(64, dtype=bool)].min()
-    rnd = np.random.default_rng(0).choice(4000, 64, replace=False)
-    rnd_min = rot.pairwise_geodesic(R[rnd], R[rnd])[~np.eye(64, dtype=bool)].min()
-    assert fps_min > 2 * rnd_min
-    # Coverage: every rotation lies closer to the FPS set than the FPS set's own spacing.
-    _, cover = rot.nearest(R, R[idx])
-    assert cover.max() <= fps_min + 1e-9
-    # Restricted pool.
-    sub = rot.farthest_point_sampling(R, 10, candidates=np.arange(100, 200))
-    assert np.all((sub >= 100) & (sub < 200))
-
-
 def test_symmetric_error_and_inplane_label():
     S = rot.discrete_symmetries_from_axis([0, 0, 1], 2)
     R = rot.haar_uniform(10, 0)
@@ -83,7 +67,7 @@ def _rz(deg):
 
 
 def test_continuous_symmetry_hand_computed_cases():
-    from helpers.rotations import Symmetries, symmetric_geodesic_deg
+    from helpers.core.rotations import Symmetries, symmetric_geodesic_deg
 
     cyl = Symmetries(np.eye(3)[None], np.array([[0.0, 0.0, 2.0]]))  # axis z, not unit on purpose
     eye = np.eye(3)[None]
@@ -101,7 +85,7 @@ def test_continuous_symmetry_hand_computed_cases():
 
 
 def test_continuous_symmetry_is_the_limit_of_fine_discretisation():
-    from helpers.rotations import Symmetries, haar_uniform, symmetric_geodesic_deg
+    from helpers.core.rotations import Symmetries, haar_uniform, symmetric_geodesic_deg
 
     axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     flip = Symmetries(np.stack([np.eye(3), _rx(180.0)]), axis[None])
@@ -125,35 +109,3 @@ def test_continuous_symmetry_is_the_limit_of_fine_discretisation():
                              for d in flip.discrete])
     old = np.array([symmetric_geodesic_deg(R_est[i:i + 1], R_gt[i:i + 1], coarse)[0] for i in range(50)])
     assert (old >= exact - 1e-6).all() and (old - exact).max() > 3.0
-
-
-def test_fps_traces_are_exact_in_any_order():
-    """The quantised layout makes traces order-independent, so ties break alike everywhere."""
-    L = rot.exact_traces_layout(rot.haar_uniform(500, seed=3))
-    v = L[:, 7]
-    forward = sum(L[c] * v[c] for c in range(9))
-    backward = sum(L[c] * v[c] for c in reversed(range(9)))
-    np.testing.assert_array_equal(v @ L, forward)
-    np.testing.assert_array_equal(forward, backward)
-    assert np.abs(L.T.reshape(-1, 3, 3) - rot.haar_uniform(500, seed=3)).max() <= rot.TRACE_QUANTUM
-
-
-def _fps_numpy(R, k, start=0, candidates=None, monkeypatch=None):
-    monkeypatch.setattr(rot, "_fps_kernel", lambda: None)
-    out = rot.farthest_point_sampling(R, k, start=start, candidates=candidates)
-    monkeypatch.undo()
-    return out
-
-
-@pytest.mark.skipif(rot._fps_kernel() is None, reason="no C++ toolchain: the FPS kernel cannot build here")
-def test_fps_kernel_matches_numpy(monkeypatch):
-    R = rot.haar_uniform(3000, seed=1)
-    for k, start, cand in [(64, 0, None), (256, 17, np.arange(500, 2900)), (2, 5, np.arange(10))]:
-        np.testing.assert_array_equal(rot.farthest_point_sampling(R, k, start=start, candidates=cand),
-                                      _fps_numpy(R, k, start, cand, monkeypatch))
-    # A symmetric set (90-degree turns about the axes, composed) is full of exact ties.
-    turns = [rot.rot_z(a) for a in (0, np.pi / 2, np.pi, 3 * np.pi / 2)]
-    swap = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], dtype=float)
-    grid = np.stack([a @ np.linalg.matrix_power(swap, p) @ b.T for a in turns for b in turns for p in range(3)])
-    np.testing.assert_array_equal(rot.farthest_point_sampling(grid, 20),
-                                  _fps_numpy(grid, 20, monkeypatch=monkeypatch))

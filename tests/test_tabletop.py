@@ -4,9 +4,10 @@ that match renders, and the named query styles."""
 import numpy as np
 import pytest
 
-from helpers.render import QueryStyle, RenderConfig, query_style, render_query, render_reference
-from helpers.rotations import geodesic_deg
-from helpers.tabletop import elevation_of, look_at_w2c, sample_viewpoint, stable_poses
+from helpers.core.configs import QueryStyle, RenderConfig, query_style
+from helpers.core.rotations import geodesic_deg
+from helpers.data.render import render_query, render_reference
+from helpers.data.tabletop import elevation_of, look_at_w2c, sample_viewpoint, stable_poses
 
 RC = RenderConfig(size=48, render_size=72)
 
@@ -17,7 +18,7 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def mug(manifest):
-    from helpers.meshes import load_object
+    from helpers.data.meshes import load_object
 
     return load_object("mug", manifest)
 
@@ -59,8 +60,9 @@ def test_viewpoints_stay_inside_the_stated_range(mug):
 def test_tabletop_labels_match_reference_renders(mug, manifest):
     """A silhouette rendered as a reference at the query's label overlaps the query's object
     mask (IoU > 0.8), and clearly better than at a rotation 40 degrees away."""
-    from helpers.datasets import background_photos
     from scipy.spatial.transform import Rotation
+
+    from helpers.data.datasets import background_photos
 
     turn = Rotation.from_rotvec(np.radians(40) * np.array([1.0, 0.0, 0.0])).as_matrix()  # about camera x
     photos = background_photos(manifest, "test")
@@ -78,7 +80,7 @@ def test_tabletop_labels_match_reference_renders(mug, manifest):
 
 @pytest.mark.gl
 def test_tabletop_scene_has_surroundings_and_leaves_references_clean(mug, manifest):
-    from helpers.datasets import background_photos
+    from helpers.data.datasets import background_photos
 
     photos = background_photos(manifest, "train")
     ref_before, _ = render_reference(mug, np.eye(3), RC)

@@ -1,15 +1,16 @@
-"""The T-LESS-like set (helpers.tless) and its protocol (helpers.tless_protocol) on a tiny configuration."""
+"""The T-LESS-like set (helpers.data.tless) and its protocol (helpers.study.tless_protocol) on a tiny configuration."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from helpers.baselines import HogModel
-from helpers.fileio import DamagedEntry
-from helpers.render import render_raw
-from helpers.tless import TlessConfig, load_tless, rotation_errors, vsd_errors
-from helpers.tless_protocol import evaluate_tless
+from helpers.core.fileio import DamagedEntry
+from helpers.data.gl import render_raw
+from helpers.data.tless import TlessConfig, load_tless
+from helpers.evaluation.baselines import HogModel
+from helpers.evaluation.tless_scoring import rotation_errors, vsd_errors
+from helpers.study.tless_protocol import evaluate_tless
 
 pytestmark = pytest.mark.gl
 TINY = TlessConfig(n_references=12, n_queries=2)
@@ -75,7 +76,7 @@ def test_hog_on_the_set_reports_vsd_and_rotation_accuracy(tmp_path):
 
 
 def _tless_parameters(**over):
-    from helpers.params import declared_parameters, notebook_path
+    from helpers.study.parameters import declared_parameters, notebook_path
 
     P = declared_parameters(notebook_path("09_tless"))
     P.update(over)
@@ -90,8 +91,7 @@ def _tless_parameters(**over):
     ({"bop_root": "no/such/folder"}, r"'bop_root' expects '' or a BOP dataset folder"),
 ])
 def test_tless_parameters_are_checked_before_any_work(over, match):
-    from helpers.param_values import check_values
-    from helpers.params import ParameterError
+    from helpers.study.parameters import ParameterError, check_values
 
     with pytest.raises(ParameterError, match=match):
         check_values("09_tless", _tless_parameters(**over))

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-import helpers.train as train_mod
-from helpers.augment import AugmentConfig, augment_batch, augment_image
-from helpers.losses import pair_weights, weighted_info_nce
-from helpers.model import ModelConfig, OrientationNet, images_to_tensor
-from helpers.rotations import geodesic_deg, haar_uniform, inplane_rotate_label
-from helpers.train import TrainConfig, load_model, plot_history, selection_metric, train, train_step, validate
-from helpers.views import ObjectViews
+import helpers.training.train as train_mod
+from helpers.core.configs import AugmentConfig, ModelConfig, TrainConfig
+from helpers.core.rotations import geodesic_deg, haar_uniform, inplane_rotate_label
+from helpers.core.views import ObjectViews
+from helpers.net.model import OrientationNet, images_to_tensor
+from helpers.training.augment import augment_batch, augment_image
+from helpers.training.losses import pair_weights, weighted_info_nce
+from helpers.training.train import load_model, plot_history, selection_metric, train, train_step, validate
 
 SIZE = 64
 
@@ -83,7 +84,7 @@ def test_inplane_recrop_rotates_the_whole_view_without_mirroring_or_cutting():
     """Authors' in-plane augmentation: rotate the whole stored view on an enlarged canvas,
     re-take the tight box from the rotated mask. New area is exactly zero (nothing mirrored),
     the object is never cut, and the output is the crop size."""
-    from helpers.augment import box_crop, centre_crop, rotate_inplane
+    from helpers.training.augment import box_crop, centre_crop, rotate_inplane
 
     C, S = 48, 32
     img = np.full((C, C, 3), 200, np.uint8)  # bright "surroundings": a mirrored border would copy them
@@ -112,8 +113,9 @@ def test_inplane_recrop_label_matches_a_render(manifest):
     """The augmented label is the rotation whose reference render looks like the augmented
     query: the silhouette of a query re-cropped after a 40 deg turn overlaps the reference
     rendered at the new label (IoU > 0.8), and not the one at the old label."""
-    from helpers.meshes import load_object
-    from helpers.render import RenderConfig, render_reference
+    from helpers.core.configs import RenderConfig
+    from helpers.data.meshes import load_object
+    from helpers.data.render import render_reference
 
     obj = load_object("mug", manifest)
     rc = RenderConfig(size=48, render_size=72)

@@ -8,11 +8,20 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from helpers.model import ModelConfig
-from helpers.study import _train_key
-from helpers.train import TrainConfig
-from helpers.variants import (COMPONENT_LABELS, Trained, chain, claim, claims_table, parse_scales, seed_differences,
-                               seed_spread, variant_config, variant_table, with_seeds)
+from helpers.core.configs import ModelConfig, TrainConfig, parse_scales
+from helpers.evaluation.paper import COMPONENT_LABELS
+from helpers.study.pipeline import _train_key
+from helpers.study.variants import (
+    Trained,
+    chain,
+    claim,
+    claims_table,
+    seed_differences,
+    seed_spread,
+    variant_config,
+    variant_table,
+    with_seeds,
+)
 
 
 def _base() -> TrainConfig:
@@ -128,7 +137,7 @@ def test_variant_table_with_seeds_shows_each_seed_and_the_range():
 
 
 def test_seeded_variants_are_checked_before_any_work():
-    from helpers.params import ParameterError, check_parameters
+    from helpers.study.parameters import ParameterError, check_parameters
 
     with pytest.raises(ParameterError, match="seeded_variants"):
         check_parameters("05_ablation_fusion", {"seeded_variants": ["attention"]})

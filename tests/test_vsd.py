@@ -1,11 +1,11 @@
-"""err_vsd (helpers.vsd) on hand-computed depth images, and on renders of a symmetric object."""
+"""err_vsd (helpers.evaluation.vsd) on hand-computed depth images, and on renders of a symmetric object."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from helpers.vsd import depth_to_distance, visible_mask, vsd_accuracy, vsd_error
+from helpers.evaluation.vsd import depth_to_distance, visible_mask, vsd_accuracy, vsd_error
 
 K = np.array([[100.0, 0, 10], [0, 100.0, 10], [0, 0, 1]])  # 20 x 20 image, principal point at (10, 10)
 
@@ -96,8 +96,9 @@ def test_a_cylinder_turned_about_its_axis_scores_about_zero(tmp_path):
     import trimesh
     from scipy.spatial.transform import Rotation
 
-    from helpers.byo import custom_object
-    from helpers.render import RenderConfig, render_raw
+    from helpers.core.configs import RenderConfig
+    from helpers.data.gl import render_raw
+    from helpers.study.byo import custom_object
 
     path = tmp_path / "cylinder.ply"
     trimesh.creation.cylinder(radius=0.5, height=1.2, sections=128).export(path)

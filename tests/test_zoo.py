@@ -8,8 +8,8 @@ import pytest
 import torch
 import yaml
 
-from helpers import zoo
-from helpers.precision import autocast, native_bf16, resolve_precision
+from helpers.core.precision import autocast, native_bf16, resolve_precision
+from helpers.study import zoo
 
 TINY = {
     "data": {"image_size": 64, "render_size": 64, "n_references": 8, "n_train_queries": 4, "n_val_queries": 2,
@@ -109,7 +109,8 @@ def test_precision_auto_follows_the_hardware_and_bf16_stays_close():
     assert resolve_precision("auto", cpu) == ("bf16" if native_bf16(cpu) else "fp32")
     with pytest.raises(ValueError, match="precision"):
         resolve_precision("fp16", cpu)
-    from helpers.model import ModelConfig, OrientationNet
+    from helpers.core.configs import ModelConfig
+    from helpers.net.model import OrientationNet
 
     torch.manual_seed(0)
     m = OrientationNet(ModelConfig(image_size=64)).eval()
@@ -131,7 +132,7 @@ def test_notebook_evaluates_the_zoo_model_with_models_zoo(tmp_path):
 
     import papermill as pm
 
-    from helpers.params import notebook_path
+    from helpers.study.parameters import notebook_path
 
     out = tmp_path / "06.ipynb"
     pm.execute_notebook(str(notebook_path("06_reference_count")), str(out), kernel_name="python3",
@@ -143,15 +144,12 @@ def test_notebook_evaluates_the_zoo_model_with_models_zoo(tmp_path):
 
 def test_long_preset_trains_the_zoo_recipes_runs():
     """The long preset's notebook parameters give the zoo recipes' configs, so notebook 02/03 of
-    the long preset and `python -m helpers.zoo train` share (and resume) the same cache runs."""
+    the long preset and `python -m helpers.study.zoo train` share (and resume) the same cache runs."""
     from dataclasses import asdict
 
-    from helpers.augment import AugmentConfig
-    from helpers.model import ModelConfig
-    from helpers.runner import preset_parameters
-    from helpers.study import DataConfig, _train_key
-    from helpers.train import TrainConfig
-    from helpers.variants import parse_scales
+    from helpers.core.configs import AugmentConfig, DataConfig, ModelConfig, TrainConfig, parse_scales
+    from helpers.study.pipeline import _train_key
+    from helpers.study.runner import preset_parameters
 
     P = preset_parameters("long", "02_train")
     data = DataConfig(image_size=P["image_size"], render_size=P["render_size"], n_references=P["n_references"],

@@ -1,0 +1,226 @@
+"""Evaluation metrics: symmetry-aware rotation error, class / rotation accuracy.
+
+Protocol (the method's): per object, Class. Acc. = % of its queries whose
+predicted object is right; Rota. Acc. = % whose predicted object is right AND
+whose rotation error is below a threshold (30 degrees). Per-object numbers are
+then averaged over objects without weighting by query count.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..core.rotations import Symmetries, symmetric_geodesic_deg
+
+#: Columns of the per-object table, in order.
+PER_OBJECT_COLUMNS = ("n", "class_acc", "rot_acc", "median_err_deg", "mean_err_deg")
+
+
+@dataclass
+class Record:
+    """One query's prediction.
+
+    Attributes:
+        obj: true object name.
+        pred_obj: predicted object name.
+        R_gt, R_est: (3, 3) ``R_m2c``.
+        symmetries: optional (K, 3, 3) symmetries of the TRUE object.
+        query_id: optional free-form identifier (kept in per-query tables).
+    """
+
+    obj: str
+    pred_obj: str
+    R_gt: np.ndarray
+    R_est: np.ndarray
+    symmetries: np.ndarray | None = None
+    query_id: Any = None
+
+
+def rotation_errors_deg(R_est: np.ndarray, R_gt: np.ndarray, symmetries: np.ndarray | None = None) -> np.ndarray:
+    """Geodesic errors (N,) in degrees, minimised over ``symmetries`` (K,3,3) of the object.
+
+    Accepts single (3,3) matrices or (N,3,3) stacks.
+    """
+    R_est = np.asarray(R_est, dtype=np.float64)
+    R_gt = np.asarray(R_gt, dtype=np.float64)
+    if R_est.shape[-2:] != (3, 3) or R_gt.shape[-2:] != (3, 3):
+        raise ValueError(f"rotation_errors_deg: expected (N,3,3) or (3,3) arrays, got R_est {R_est.shape}, "
+                         f"R_gt {R_gt.shape}")
+    R_est, R_gt = R_est.reshape(-1, 3, 3), R_gt.reshape(-1, 3, 3)
+    if len(R_est) != len(R_gt):
+        raise ValueError(f"rotation_errors_deg: R_est has {len(R_est)} rotations, R_gt has {len(R_gt)}")
+    if symmetries is not None and not isinstance(symmetries, Symmetries):
+        symmetries = np.asarray(symmetries, dtype=np.float64).reshape(-1, 3, 3)
+    return symmetric_geodesic_deg(R_est, R_gt, symmetries)
+
+
+def _as_record(r: Any, i: int) -> Record:
+    if isinstance(r, Record):
+        return r
+    if isinstance(r, Mapping):
+        missing = [k for k in ("obj", "pred_obj", "R_gt", "R_est") if k not in r]
+        if missing:
+            raise ValueError(f"record {i}: missing keys {missing} (expected obj, pred_obj, R_gt, R_est "
+                             "and optionally symmetries, query_id)")
+        return Record(str(r["obj"]), str(r["pred_obj"]), np.asarray(r["R_gt"]), np.asarray(r["R_est"]),
+                      r.get("symmetries"), r.get("query_id"))
+    raise TypeError(f"record {i}: expected a Record or a mapping, got {type(r).__name__}")
+
+
+def per_query_table(records: Iterable[Record | Mapping], threshold_deg: float = 30.0) -> pd.DataFrame:
+    """One row per query: obj, pred_obj, query_id, class_ok, err_deg, rot_ok.
+
+    ``err_deg`` compares R_est with R_gt under the TRUE object's symmetries,
+    whether or not the predicted object is right.
+    """
+    recs = [_as_record(r, i) for i, r in enumerate(records)]
+    if not recs:
+        raise ValueError("evaluate: no records given")
+    errs = np.empty(len(recs))
+    # Group by symmetry set so each group is one vectorised call.
+    groups: dict[int, list[int]] = {}
+    for i, r in enumerate(recs):
+        groups.setdefault(id(r.symmetries) if r.symmetries is not None else 0, []).append(i)
+    for idx in groups.values():
+        sym = recs[idx[0]].symmetries
+        errs[idx] = rotation_errors_deg(np.stack([recs[i].R_est for i in idx]),
+                                        np.stack([recs[i].R_gt for i in idx]), sym)
+    df = pd.DataFrame({"obj": [r.obj for r in recs], "pred_obj": [r.pred_obj for r in recs],
+                       "query_id": [r.query_id for r in recs]})
+    df["class_ok"] = df["obj"] == df["pred_obj"]
+    df["err_deg"] = errs
+    df["rot_ok"] = df["class_ok"] & (df["err_deg"] < threshold_deg)
+    return df
+
+
+def evaluate_predictions(records: Iterable[Record | Mapping], threshold_deg: float = 30.0
+                         ) -> tuple[pd.DataFrame, dict[str, float]]:
+    """Per-object accuracies and their unweighted means.
+
+    Args:
+        records: :class:`Record` objects or mappings with the same keys.
+        threshold_deg: rotation-accuracy threshold, degrees (strict ``<``).
+
+    Returns:
+        per_object: DataFrame indexed by object name (sorted) with columns
+            n (queries), class_acc (%), rot_acc (%: class right AND error <
+            threshold), median_err_deg and mean_err_deg. The error statistics
+            are over ALL queries of the object, using R_est even when the
+            predicted class is wrong (then it is the rotation of the wrong
+            object's reference, compared with the true object's pose under the
+            true object's symmetries): they describe pose quality
+            independently of classification.
+        means: the same quantities averaged over objects (unweighted), plus
+            n_objects and n_queries.
+    """
+    return summarise_queries(per_query_table(records, threshold_deg))
+
+
+def summarise_queries(per_query: pd.DataFrame) -> tuple[pd.DataFrame, dict[str, float]]:
+    """Per-object table and unweighted means from a :func:`per_query_table` frame."""
+    g = per_query.groupby("obj", sort=True)
+    per_object = pd.DataFrame({
+        "n": g.size(),
+        "class_acc": 100.0 * g["class_ok"].mean(),
+        "rot_acc": 100.0 * g["rot_ok"].mean(),
+        "median_err_deg": g["err_deg"].median(),
+        "mean_err_deg": g["err_deg"].mean(),
+    })[list(PER_OBJECT_COLUMNS)]
+    per_object.index.name = "obj"
+    return per_object, _means(per_object)
+
+
+def _means(per_object: pd.DataFrame) -> dict[str, float]:
+    means = {c: float(per_object[c].mean()) for c in PER_OBJECT_COLUMNS if c != "n"}
+    means["n_objects"] = int(len(per_object))
+    means["n_queries"] = int(per_object["n"].sum())
+    return means
+
+
+def group_by_split(per_object: pd.DataFrame, split_of: Mapping[str, str]) -> pd.DataFrame:
+    """Unweighted means of the per-object table within each split.
+
+    Args:
+        per_object: output of :func:`evaluate_predictions`.
+        split_of: object name -> split label (e.g. ``"seen"``/``"unseen"`` or
+            ``"split1"``). Every object in the table must be mapped.
+
+    Returns:
+        DataFrame indexed by split label (sorted) with the mean class_acc,
+        rot_acc, median_err_deg, mean_err_deg over that split's objects, plus
+        n_objects and n_queries.
+    """
+    missing = sorted(set(per_object.index) - set(split_of))
+    if missing:
+        raise ValueError(f"group_by_split: split_of has no entry for objects {missing}")
+    rows = {}
+    labels = per_object.index.map(lambda o: split_of[o])
+    for label, sub in per_object.groupby(labels, sort=True):
+        rows[label] = _means(sub)
+    out = pd.DataFrame.from_dict(rows, orient="index")
+    out.index.name = "split"
+    return out
+
+
+def paired_difference(a: pd.DataFrame, b: pd.DataFrame, column: str = "rot_ok", n_boot: int = 2000,
+                      seed: int = 0, level: float = 0.95) -> dict[str, Any]:
+    """Is variant ``b`` better than variant ``a`` on the same queries, beyond noise?
+
+    Both frames come from :func:`per_query_table` over the same queries
+    (matched by ``query_id``). The statistic is the difference of the
+    object-averaged accuracies (b - a, percentage points), as in the tables;
+    its interval comes from a paired bootstrap that resamples queries within
+    each object (so each object keeps its weight).
+
+    Returns:
+        {"diff_pts", "ci": [lo, hi], "level", "n_queries", "verdict"} with
+        verdict "b > a" or "b < a" when the interval excludes 0, else
+        "within noise".
+    """
+    if set(a["query_id"]) != set(b["query_id"]) or len(a) != len(b):
+        raise ValueError("paired_difference: the two tables must hold the same queries (query_id)")
+    m = a[["query_id", "obj", column]].merge(b[["query_id", column]], on="query_id", suffixes=("_a", "_b"))
+    d = (m[f"{column}_b"].astype(float) - m[f"{column}_a"].astype(float)).to_numpy()
+    groups = [np.flatnonzero((m["obj"] == o).to_numpy()) for o in sorted(m["obj"].unique())]
+    point = 100.0 * float(np.mean([d[g].mean() for g in groups]))
+    rng = np.random.default_rng(seed)
+    boots = np.zeros(n_boot)
+    for g in groups:
+        # Mean of a resample of this object's paired differences, for every bootstrap draw at once.
+        boots += d[g][rng.integers(0, len(g), size=(n_boot, len(g)))].mean(axis=1)
+    boots *= 100.0 / len(groups)
+    lo, hi = (float(x) for x in np.quantile(boots, [(1 - level) / 2, (1 + level) / 2]))
+    verdict = "b > a" if lo > 0 else "b < a" if hi < 0 else "within noise"
+    return {"diff_pts": point, "ci": [lo, hi], "level": level, "n_queries": int(len(d)), "verdict": verdict}
+
+
+def chance_levels(n_objects: int, threshold_deg: float = 30.0) -> dict[str, float]:
+    """Accuracy (%) of guessing: class uniformly, rotation Haar-uniformly.
+
+    P(angle < t) for a Haar rotation is (t - sin t) / pi.
+    """
+    t = np.radians(threshold_deg)
+    p_rot = (t - np.sin(t)) / np.pi
+    return {"class_acc": 100.0 / n_objects, "rot_acc": 100.0 * p_rot / n_objects}
+
+
+def agreement_within(greedy: list, fast: list, threshold_deg: float = 30.0, n_boot: int = 2000,
+                     seed: int = 0) -> dict:
+    """Share of queries on which ``fast`` predicts greedy's object and a rotation within
+    ``threshold_deg`` of greedy's (symmetry-aware), with a bootstrap 95 % interval over queries.
+
+    Both are lists of :class:`helpers.evaluation.metrics.Record` for the same queries, in order.
+    """
+    ok = np.array([a.pred_obj == b.pred_obj and
+                   float(symmetric_geodesic_deg(a.R_est[None], b.R_est[None], a.symmetries if a.pred_obj == a.obj
+                                                else None)[0]) < threshold_deg
+                   for a, b in zip(greedy, fast)], dtype=float)
+    rng = np.random.default_rng(seed)
+    boots = ok[rng.integers(0, len(ok), size=(n_boot, len(ok)))].mean(axis=1) if len(ok) else np.zeros(1)
+    return {"share": float(ok.mean()) if len(ok) else float("nan"),
+            "ci95": [float(np.quantile(boots, 0.025)), float(np.quantile(boots, 0.975))], "n": int(len(ok))}

@@ -1,0 +1,343 @@
+"""Bring your own object: a mesh file and a query crop in, a rotation out.
+
+Renders references of the given mesh (same recipe as the benchmark's,
+cached by the mesh's sha256), encodes them with a trained model, retrieves
+the query and draws the retrieved reference beside the query.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from ..core.configs import RenderConfig
+from ..core.device import resolve_device
+from ..core.fileio import (
+    DamagedEntry,
+    atomic_save_npy,
+    atomic_write_json,
+    check_sha256,
+    read_json,
+    sha256_file,
+    stable_hash,
+    touch,
+)
+from ..core.locks import entry_lock, made_by
+from ..core.paths import cache_dir
+from ..core.rotations import geodesic_deg, haar_uniform
+from ..core.views import ObjectViews
+from ..data.meshes import ObjectMesh, load_mesh_file, normalise, set_color
+from ..data.render import render_reference
+from ..search.features import FeatureCache, encode_batch, encode_views, model_fingerprint
+from . import zoo  # here, not at the top: the zoo pulls in training, which the library part never needs
+from .figures import _plt, save
+
+
+@dataclass
+class ByoResult:
+    """Outcome of :func:`estimate_rotation`.
+
+    Attributes:
+        R_m2c: (3, 3) estimated rotation of the mesh in the query's camera frame
+            (up to the in-plane rotation of the crop and the mesh's own centring).
+        score: similarity of the retrieved reference.
+        ref_index: index of the retrieved reference.
+        ref_image: (S, S, 3) uint8 retrieved reference.
+        query_image: (S, S, 3) uint8 query as fed to the network.
+        alternatives: the next best references, best first: {"index", "score",
+            "R_m2c" (3x3 list), "deg_from_best" (geodesic angle to ``R_m2c``, degrees)}.
+    """
+
+    R_m2c: np.ndarray
+    score: float
+    ref_index: int
+    ref_image: np.ndarray
+    query_image: np.ndarray
+    alternatives: list[dict] = field(default_factory=list)
+
+
+ALPHA_MODES = ("composite", "crop")
+
+
+def load_query_image(path: str | os.PathLike, size: int, alpha: str = "composite") -> np.ndarray:
+    """Read an object crop as (size, size, 3) uint8 RGB, the way the references look.
+
+    * Transparency (RGBA/LA PNG): ``alpha="composite"`` blends the image over black,
+      the references' background; ``alpha="crop"`` first cuts the image to the box of
+      its non-transparent pixels (then composites over black). A crop's hidden pixels
+      never reach the network as they happen to be stored.
+    * A non-square crop is padded with black to a square around its centre, never cut:
+      the object stays whole and keeps its aspect ratio.
+    * Grey and 16-bit images are converted to 8-bit RGB.
+
+    Raises FileNotFoundError / ValueError naming the file and what was expected.
+    """
+    p = Path(path)
+    if alpha not in ALPHA_MODES:
+        raise ValueError(f"alpha: expected one of {ALPHA_MODES}, got {alpha!r}")
+    if not p.is_file():
+        raise FileNotFoundError(f"query image {p} does not exist")
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise ValueError(f"query image {p} is not a readable image (expected PNG/JPEG/... of an object crop)")
+    if img.dtype == np.uint16:
+        img = (img.astype(np.float32) / 257.0).round().astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise ValueError(f"query image {p}: unsupported pixel type {img.dtype} (expected 8- or 16-bit)")
+    if img.ndim == 2:
+        img = img[..., None]
+    a = None
+    if img.shape[2] in (2, 4):  # grey+alpha or BGRA
+        a = img[..., -1].astype(np.float32) / 255.0
+        img = img[..., :-1]
+    img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB) if img.shape[2] == 1 else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    if a is not None:
+        if not (a > 0).any():
+            raise ValueError(f"query image {p}: the alpha channel is fully transparent (no object to see)")
+        if alpha == "crop":
+            ys, xs = np.nonzero(a > 0)
+            img = img[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
+            a = a[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
+        img = (img.astype(np.float32) * a[..., None]).round().astype(np.uint8)  # over black
+    img = pad_to_square(img)
+    return cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)
+
+
+def pad_to_square(img: np.ndarray) -> np.ndarray:
+    """(H, W, 3) -> (S, S, 3), S = max(H, W): black bands on both sides of the short axis."""
+    h, w = img.shape[:2]
+    s = max(h, w)
+    top, left = (s - h) // 2, (s - w) // 2
+    return np.pad(img, ((top, s - h - top), (left, s - w - left), (0, 0)))
+
+
+def custom_object(mesh_path: str | os.PathLike, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
+                  sha256: str | None = None) -> ObjectMesh:
+    """An ObjectMesh from any mesh file (normalised like the manifest objects).
+
+    ``color=None`` keeps the file's texture/colours. Every error names the file.
+    """
+    try:
+        mesh = load_mesh_file(mesh_path)
+        if color is not None:
+            mesh = set_color(mesh, color)
+        mesh = normalise(mesh)
+    except (ValueError, FileNotFoundError) as e:
+        if str(mesh_path) in str(e):
+            raise
+        raise type(e)(f"mesh file {mesh_path}: {e}") from None
+    return ObjectMesh(Path(mesh_path).stem, mesh, 0.2, color is None, sha256 or sha256_file(mesh_path), np.eye(3)[None])
+
+
+def _refset_key(sha: str, n: int, seed: int, cfg: RenderConfig, textured: bool) -> str:
+    return stable_hash({"sha": sha, "n": n, "seed": seed, "cfg": cfg.__dict__, "textured": textured})
+
+
+def render_custom_references(obj: ObjectMesh, n: int, cfg: RenderConfig, seed: int = 0,
+                             cache: str | os.PathLike | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(n, S, S, 3) uint8 references and (n, 3, 3) rotations, cached by mesh hash.
+
+    Renders in this process (one GL context; do not fork afterwards), one process per
+    reference set at a time (its lock); ``meta.json`` (written last) records the sha256 of
+    both arrays, and a set that no longer matches them is rendered again.
+    """
+    d = _refs_dir(obj.name, _refset_key(obj.sha256, n, seed, cfg, obj.textured), cache)
+    done = _cached_refs(d)
+    if done is not None:
+        return done
+    with entry_lock(d, f"bring-your-own references {d.name}"):
+        done = _cached_refs(d, warn=True)
+        if done is not None:
+            return done
+        for stray in d.glob(".*.tmp"):  # left by a killed builder (we hold the lock)
+            stray.unlink(missing_ok=True)
+        R64 = haar_uniform(n, seed=seed)
+        imgs = np.zeros((n, cfg.size, cfg.size, 3), np.uint8)
+        for i in tqdm(range(n), desc=f"rendering {obj.name}", unit="img"):
+            imgs[i] = render_reference(obj, R64[i], cfg)[0]
+        R = R64.astype(np.float32)
+        atomic_save_npy(d / "rotations.npy", R)
+        atomic_save_npy(d / "images.npy", imgs)
+        atomic_write_json(d / "meta.json", {"mesh_sha256": obj.sha256, "n": n, "seed": seed, "made_by": made_by(),
+                                            "sha256": {f: sha256_file(d / f) for f in BYO_FILES}})
+    return imgs, R
+
+
+BYO_FILES = ("images.npy", "rotations.npy")
+
+
+def check_refs(d: Path) -> None:
+    """Raise :class:`DamagedEntry` unless reference set ``d`` matches the sha256 sums in its meta.json."""
+    meta = d / "meta.json"
+    try:
+        sums = read_json(meta)["sha256"]
+    except (ValueError, KeyError, TypeError):
+        raise DamagedEntry(f"{meta}: unreadable or without checksums; delete {d} to re-render") from None
+    for f in BYO_FILES:
+        check_sha256(d / f, sums.get(f, ""), meta, f"delete {d} to re-render (or rerun: damaged sets are re-rendered)")
+
+
+def _cached_refs(d: Path, warn: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+    """The finished, intact reference set in ``d`` (images memory-mapped), or None."""
+    if not (d / "meta.json").exists():
+        return None
+    try:
+        check_refs(d)
+    except DamagedEntry as e:
+        if warn:
+            warnings.warn(f"{e}; re-rendering it", RuntimeWarning, stacklevel=3)
+        return None
+    touch(d / "meta.json")  # last use
+    return np.load(d / "images.npy", mmap_mode="r"), np.load(d / "rotations.npy")
+
+
+def _refs_dir(name: str, key: str, cache: str | os.PathLike | None) -> Path:
+    return cache_dir(cache) / "byo" / f"{name}-{key}"
+
+
+def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.PathLike, n_refs: int = 1024,
+                      render_size: int = 160, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
+                      device: str = "auto", cache: str | os.PathLike | None = None,
+                      alpha: str = "composite", n_alternatives: int = 4) -> ByoResult:
+    """Estimate the rotation of the object in ``query_path`` from its mesh ``mesh_path``.
+
+    The references (renders) and their features are cached under ``<cache>/byo`` and
+    ``<cache>/features``, keyed by the mesh file's sha256, the reference set (count,
+    seed, render settings, colour) and the model's weights, so a second query of the
+    same object with the same model costs only the query's encoding and the search.
+    ``alpha``: how a transparent query crop is read (see :func:`load_query_image`).
+    """
+    size = int(model.cfg.image_size) if hasattr(model, "cfg") else 128
+    query = load_query_image(query_path, size, alpha)
+    mesh_path = Path(mesh_path)
+    if not mesh_path.is_file():
+        raise FileNotFoundError(f"mesh file {mesh_path} does not exist")
+    sha = sha256_file(mesh_path)
+    cfg = RenderConfig(size=size, render_size=render_size)
+    key = _refset_key(sha, n_refs, 0, cfg, color is None)
+    dev = resolve_device(device)
+    fc = FeatureCache(cache_dir(cache) / "features")
+    mkey = model_fingerprint(model)
+    rdir = _refs_dir(mesh_path.stem, key, cache)
+    try:
+        feats = fc.load(mkey, f"byo-{key}")
+    except DamagedEntry:
+        feats = None  # get_or_build reports and rebuilds it
+    cached = _cached_refs(rdir) if feats is not None else None
+    if cached is not None:
+        refs, R = cached
+    else:
+        obj = custom_object(mesh_path, color, sha256=sha)
+        refs, R = render_custom_references(obj, n_refs, cfg, cache=cache)
+        views = ObjectViews(mesh_path.stem, refs, R, None, "reference")
+        feats = fc.get_or_build(model, mkey, views, f"byo-{key}", batch=encode_batch(dev), device=dev)
+    qf = next(encode_views(model, query[None], device=dev))
+    model.eval()
+    with torch.inference_mode(), warnings.catch_warnings():
+        # The cached features are a read-only memmap; score() only reads them (chunk by chunk).
+        warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
+        s = model.score(qf.to(dev), torch.from_numpy(np.asarray(feats)))[0].float().cpu().numpy()
+    order = np.argsort(-s, kind="stable")
+    k = int(order[0])
+    best = R[k].astype(np.float64)
+    alts = [{"index": int(j), "score": float(s[j]), "R_m2c": R[j].astype(np.float64).tolist(),
+             "deg_from_best": float(geodesic_deg(best, R[j].astype(np.float64)))}
+            for j in order[1:1 + n_alternatives]]
+    return ByoResult(best, float(s[k]), k, np.array(refs[k]), query, alts)
+
+
+def overlay_figure(res: ByoResult, path: str | os.PathLike) -> Path:
+    """Query | retrieved reference | blend of the two."""
+    plt = _plt()
+    fig, ax = plt.subplots(1, 3, figsize=(6, 2.2))
+    mask = res.ref_image.sum(-1) > 0
+    blend = res.query_image.copy()
+    blend[mask] = (0.45 * blend[mask] + 0.55 * res.ref_image[mask]).astype(np.uint8)
+    for a, im, t in zip(ax, [res.query_image, res.ref_image, blend], ["query", f"retrieved (s={res.score:.2f})", "overlay"]):
+        a.imshow(im)
+        a.set_title(t, fontsize=8)
+        a.set_xticks([])
+        a.set_yticks([])
+    return save(fig, path)
+
+
+# ----------------------------------------------------------------------------- command line
+
+#: Zoo models tried in order when ``--model`` is not given: the all-objects model where it exists.
+DEFAULT_MODELS = ("all", "split1", "split2", "split3")
+
+
+def _default_model(available: dict) -> str:
+    for name in DEFAULT_MODELS:
+        if name in available:
+            return name
+    raise ValueError(f"no zoo model among {DEFAULT_MODELS} in models/zoo.yaml; pass --model NAME "
+                     f"(available: {sorted(available)})")
+
+
+def _quaternion_wxyz(R: np.ndarray) -> list[float]:
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return [float(w), float(x), float(y), float(z)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m helpers.study.byo MESH CROP [--model NAME] [--refs N] [--out overlay.png] [--json]``."""
+    import argparse
+    import json
+    import sys
+    import time
+
+    ap = argparse.ArgumentParser(prog="python -m helpers.study.byo",
+                                 description="Rotation of the object in CROP (an image) from its mesh MESH.")
+    ap.add_argument("mesh", help="mesh file (OBJ, PLY, STL, GLB...)")
+    ap.add_argument("crop", help="image of the object, cropped around it (PNG/JPEG; transparency is black)")
+    ap.add_argument("--model", default=None, help=f"zoo model (default: the first of {', '.join(DEFAULT_MODELS)})")
+    ap.add_argument("--refs", type=int, default=1024, help="references rendered from the mesh (default 1024)")
+    ap.add_argument("--out", default=None, help="write the query | retrieved | overlay figure here (PNG)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--cache", default=None, help="cache root (default: $HELPERS_CACHE_DIR or <repo>/cache)")
+    a = ap.parse_args(argv)
+    if a.refs < 1:
+        ap.error(f"--refs: expected a positive number of references, got {a.refs}")
+    t0 = time.perf_counter()
+    try:
+        name = a.model or _default_model(zoo.entries())
+        model, _ = zoo.load(name, device=a.device)
+        res = estimate_rotation(model, a.mesh, a.crop, n_refs=a.refs, device=a.device, cache=a.cache)
+    except (FileNotFoundError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if a.out:
+        overlay_figure(res, a.out)
+    out = {"model": name, "R_m2c": res.R_m2c.tolist(), "quaternion_wxyz": _quaternion_wxyz(res.R_m2c),
+           "score": res.score, "reference": res.ref_index, "n_references": a.refs,
+           "alternatives": res.alternatives, "seconds": time.perf_counter() - t0,
+           **({"overlay": a.out} if a.out else {})}
+    if a.json:
+        print(json.dumps(out, indent=1))
+        return 0
+    print(f"model {name}; best of {a.refs} references: #{res.ref_index}, score {res.score:.3f}")
+    print("R_m2c (model -> OpenCV camera):")
+    for row in res.R_m2c:
+        print("  " + "  ".join(f"{v:+.4f}" for v in row))
+    print("quaternion (w, x, y, z): " + ", ".join(f"{v:+.4f}" for v in out["quaternion_wxyz"]))
+    print("next best: " + "; ".join(f"#{x['index']} score {x['score']:.3f} at {x['deg_from_best']:.0f} deg"
+                                    for x in res.alternatives))
+    if a.out:
+        print(f"overlay: {a.out}")
+    print(f"{out['seconds']:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,300 @@
+"""Notebook parameters: names and types from each notebook's ``parameters`` cell, values from rules
+here, and the typed configurations built from them.
+
+Each notebook's first code cell (tagged ``parameters``) holds plain typed literals; it is the schema.
+:func:`check_parameters` (the notebook's second cell) re-reads that cell from the notebook file and
+checks the values the kernel actually has (defaults, possibly overridden by papermill's injected
+cell): unknown names and wrong types (:func:`check_mapping`), then values out of their domain
+(:func:`check_values`: ``-p fusion adaptve``, ``-p epochs -1``), so a bad value stops the run there
+with a message naming the notebook, the parameter and what was expected, instead of minutes later
+inside training. :func:`configs_from` then turns the checked parameters into the typed
+configurations (:mod:`helpers.core.configs`) that every later step takes.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..core.configs import STYLES, ModelConfig, TrainConfig
+from ..core.paths import REPO_ROOT, is_checkpoint_choice, repo_path
+from ..data.manifest import load_manifest
+from ..evaluation.paper import COMPONENT_LABELS
+
+NOTEBOOK_DIR = REPO_ROOT / "notebooks"
+
+# Names IPython/papermill put in a kernel's namespace that are not parameters.
+_KERNEL_NAMES = {"In", "Out", "get_ipython", "exit", "quit", "open"}
+
+
+class ParameterError(ValueError):
+    """A notebook parameter is unknown, has the wrong type or a value outside its domain."""
+
+
+def notebook_path(name: str) -> Path:
+    p = NOTEBOOK_DIR / (name if name.endswith(".ipynb") else f"{name}.ipynb")
+    if not p.exists():
+        raise FileNotFoundError(f"notebook {p} does not exist")
+    return p
+
+
+def parameters_source(path: str | Path) -> str:
+    """Source of the cell tagged ``parameters`` (must be the first code cell)."""
+    nb = json.loads(Path(path).read_text())
+    code = [c for c in nb["cells"] if c["cell_type"] == "code"]
+    if not code or "parameters" not in code[0].get("metadata", {}).get("tags", []):
+        raise ParameterError(f"{path}: the first code cell must be tagged 'parameters'")
+    src = code[0]["source"]
+    return "".join(src) if isinstance(src, list) else src
+
+
+def declared_parameters(path: str | Path) -> dict[str, Any]:
+    """{name: default} from the parameters cell; every statement must be
+    ``name = <literal>`` (no derived values)."""
+    tree = ast.parse(parameters_source(path))
+    out = {}
+    for node in tree.body:
+        if not (isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name)):
+            raise ParameterError(f"{path}: parameters cell may only hold 'name = literal' lines "
+                                 f"(line {node.lineno})")
+        try:
+            out[node.targets[0].id] = ast.literal_eval(node.value)
+        except ValueError:
+            raise ParameterError(f"{path}: parameter {node.targets[0].id!r} is not a plain literal "
+                                 f"(line {node.lineno})") from None
+    return out
+
+
+def type_name(v: Any) -> str:
+    return type(v).__name__
+
+
+def check_value(nb: str, name: str, default: Any, value: Any) -> Any:
+    """Check one value against its default's type; returns it (ints accepted for floats)."""
+    if default is None:
+        return value
+    want = type(default)
+    ok = isinstance(value, want) and not (want is int and isinstance(value, bool))
+    if want is float and isinstance(value, int) and not isinstance(value, bool):
+        ok, value = True, float(value)
+    if want is list and ok and default and value:
+        et = type(default[0])
+        ok = all(isinstance(x, et) and not (et is int and isinstance(x, bool)) for x in value)
+    if not ok:
+        raise ParameterError(f"notebook {nb}: parameter {name!r} expects {want.__name__}"
+                             f"{' of ' + type(default[0]).__name__ if want is list and default else ''}, "
+                             f"got {type_name(value)} {value!r}")
+    return value
+
+
+def check_parameters(notebook: str, namespace: dict[str, Any]) -> dict[str, Any]:
+    """Validate a kernel namespace against ``notebooks/<notebook>.ipynb``'s parameters cell.
+
+    Returns {name: value} of the parameters. Raises ParameterError on a name
+    that is not a declared parameter, on a value of another type, or on a value
+    outside its domain (:func:`check_values`).
+    """
+    declared = declared_parameters(notebook_path(notebook))
+    P = check_mapping(notebook, declared, {k: v for k, v in namespace.items() if _is_user_name(k, v)})
+    check_values(notebook, P)
+    return P
+
+
+def check_mapping(notebook: str, declared: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
+    """Validate ``given`` names/types against ``declared`` defaults; missing ones take defaults."""
+    unknown = sorted(set(given) - set(declared))
+    if unknown:
+        raise ParameterError(f"notebook {notebook}: unknown parameter(s) {unknown}; "
+                             f"declared: {sorted(declared)}")
+    out = dict(declared)
+    for k, v in given.items():
+        out[k] = check_value(notebook, k, declared[k], v)
+    return out
+
+
+def _is_user_name(k: str, v: Any) -> bool:
+    if k.startswith("_") or k in _KERNEL_NAMES:
+        return False
+    # Modules, functions and classes imported before the check are not parameters.
+    return not (callable(v) or type(v).__name__ == "module")
+
+
+_SPLITS = (1, 2, 3)
+_LEVELS = ("32", "16", "13")
+
+# name -> minimum allowed integer value
+_MIN_INT = {
+    "image_size": 64, "render_size": 64, "n_references": 1, "n_train_queries": 1, "n_val_queries": 1,
+    "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 1, "fps_k": 1,
+    "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
+    "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
+    "occluded_queries": 0, "eval_refs": 0,
+    "n_seeds": 1, "test_queries": 0, "query": 0, "top_k": 1, "n_queries": 1,
+}
+_CHOICES = {
+    "lr_schedule": ("step", "cosine"),
+    "random_ref": ("own", "any"),
+    "fusion": ("adaptive", "sigmoid", "softmax", "avg"),
+    "eval_method": ("fast", "greedy"),
+    "models": ("train", "zoo"),
+}
+
+
+def scales_ok(s: str) -> bool:
+    """'global' or a comma list of distinct levels among 32, 16, 13."""
+    if s == "global":
+        return True
+    parts = [p.strip() for p in s.split(",")]
+    return bool(parts) and len(set(parts)) == len(parts) and set(parts) <= set(_LEVELS)
+
+
+def _err(nb: str, name: str, want: str, value: Any) -> ParameterError:
+    return ParameterError(f"notebook {nb}: parameter {name!r} expects {want}, got {value!r}")
+
+
+def check_values(notebook: str, P: dict[str, Any]) -> None:
+    """Raise :class:`ParameterError` on the first parameter value out of its domain.
+
+    ``P`` holds already type-checked values (see :func:`check_mapping`).
+    Names this module has no rule for are left alone.
+    """
+    for name, lo in _MIN_INT.items():
+        if name in P and P[name] < lo:
+            raise _err(notebook, name, f"an int >= {lo}", P[name])
+    for name, options in _CHOICES.items():
+        if name in P and P[name] not in options:
+            raise _err(notebook, name, f"one of {list(options)}", P[name])
+    if "query_style" in P and P["query_style"] not in STYLES:
+        raise _err(notebook, "query_style", f"one of {sorted(STYLES)}", P["query_style"])
+    if "lr" in P and not P["lr"] > 0:
+        raise _err(notebook, "lr", "a learning rate > 0", P["lr"])
+    if "train_context" in P and not 1.0 <= P["train_context"] <= 2.0:
+        raise _err(notebook, "train_context", "a crop-side multiple in [1, 2]", P["train_context"])
+    if "render_size" in P and "image_size" in P and P["render_size"] < P["image_size"]:
+        raise _err(notebook, "render_size", f">= image_size ({P['image_size']})", P["render_size"])
+    if "split" in P and P["split"] not in _SPLITS:
+        raise _err(notebook, "split", f"one of {list(_SPLITS)}", P["split"])
+    for name in ("splits", "baseline_splits"):
+        v = P.get(name)
+        if v is not None and (not v or len(set(v)) != len(v) or not set(v) <= set(_SPLITS)):
+            raise _err(notebook, name, f"a non-empty list of distinct splits among {list(_SPLITS)}", v)
+    if "scales" in P and not scales_ok(P["scales"]):
+        raise _err(notebook, "scales", "'global' or a comma list of 32/16/13", P["scales"])
+    if "variants" in P:
+        _check_variants(notebook, P["variants"])
+    if "seeded_variants" in P:
+        _check_seeded(notebook, P["seeded_variants"], P.get("variants"))
+    if "test_queries" in P and P.get("n_test_queries") is not None and P["test_queries"] > P["n_test_queries"]:
+        raise _err(notebook, "test_queries", f"0 (all) or at most n_test_queries={P['n_test_queries']}",
+                   P["test_queries"])
+    if "reference_counts" in P:
+        rc, n = P["reference_counts"], P.get("n_references")
+        if not rc or any(c < 1 for c in rc) or (n is not None and max(rc) > n):
+            raise _err(notebook, "reference_counts",
+                       f"a non-empty list of counts in [1, n_references={n}]", rc)
+    if "device" in P:
+        d = P["device"]
+        if not (d in ("auto", "cpu", "cuda") or (d.startswith("cuda:") and d[5:].isdigit())):
+            raise _err(notebook, "device", "'auto', 'cpu', 'cuda' or 'cuda:N'", d)
+    for name, may_be_empty in (("coarse_k", True), ("refine_objects", False), ("halving_refine_objects", True)):
+        v = P.get(name)  # coarse-to-fine candidates (07): chosen among on held-out views of seen objects
+        if v is not None and ((not v and not may_be_empty) or len(set(v)) != len(v) or any(x < 1 for x in v)):
+            raise _err(notebook, name, f"a list of distinct ints >= 1{' (empty: skip)' if may_be_empty else ''}", v)
+    if "coarse_k" in P and "k_ac" in P and any(x >= P["k_ac"] for x in P["coarse_k"]):
+        raise _err(notebook, "coarse_k", f"candidates < k_ac={P['k_ac']} (a coarse round smaller than the anchors)",
+                   P["coarse_k"])
+    if "c2f_min_agreement" in P and not 0.0 < P["c2f_min_agreement"] <= 1.0:
+        raise _err(notebook, "c2f_min_agreement", "a share in (0, 1]", P["c2f_min_agreement"])
+    if "lr_milestones" in P:
+        m = P["lr_milestones"]
+        if list(m) != sorted(set(m)) or any(x < 1 for x in m):
+            raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
+    if notebook.startswith("10"):
+        _check_explore(notebook, P)
+    if notebook.startswith("09"):
+        _check_tless(notebook, P)
+    _check_configs(notebook, P)
+
+
+def _check_model_choice(notebook: str, name: str, choice: str, image_size: int) -> None:
+    """A model parameter: a zoo model's name taking ``image_size`` px crops, or an existing checkpoint file."""
+    if is_checkpoint_choice(choice):
+        if not repo_path(choice).is_file():
+            raise _err(notebook, name, "a zoo model name or an existing checkpoint (.pt) file "
+                       f"(relative paths from the repository root: {REPO_ROOT})", choice)
+        return
+    zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"  # read directly: the zoo module pulls in training
+    zoo = (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
+    if choice not in zoo:
+        raise _err(notebook, name, f"a zoo model among {sorted(zoo)} or a checkpoint (.pt) file", choice)
+    if zoo[choice]["data"]["image_size"] != image_size:
+        raise _err(notebook, name, f"a model taking image_size={image_size} px crops "
+                   f"({choice} takes {zoo[choice]['data']['image_size']})", choice)
+
+
+def _check_explore(notebook: str, P: dict[str, Any]) -> None:
+    """The explorer's model (zoo name or checkpoint file), first object and query."""
+    _check_model_choice(notebook, "model", P["model"], P["image_size"])
+    objects = load_manifest().seen_objects(0)
+    if P["object_name"] and P["object_name"] not in objects:
+        raise _err(notebook, "object_name", f"'' or a benchmark object among {objects}", P["object_name"])
+    if P["query"] >= P["n_test_queries"]:
+        raise _err(notebook, "query", f"an index below n_test_queries={P['n_test_queries']}", P["query"])
+
+
+def _check_tless(notebook: str, P: dict[str, Any]) -> None:
+    """The T-LESS-like notebook's models and set sizes."""
+    _check_model_choice(notebook, "model", P["model"], P["image_size"])
+    if P["global_model"]:
+        _check_model_choice(notebook, "global_model", P["global_model"], P["image_size"])
+    if not 0.0 < P["min_visible"] <= 1.0:
+        raise _err(notebook, "min_visible", "a share in (0, 1]", P["min_visible"])
+    if P["bop_root"]:
+        root = repo_path(P["bop_root"])
+        if not (root / P["bop_split"]).is_dir() or not any((root / "models").glob("models_info.json")):
+            raise _err(notebook, "bop_root", f"'' or a BOP dataset folder with models/models_info.json and a "
+                       f"{P['bop_split']!r} split folder (bop_split)", P["bop_root"])
+
+
+def _check_variants(notebook: str, variants: list) -> None:
+    if not variants or len(set(variants)) != len(variants):
+        raise _err(notebook, "variants", "a non-empty list without repeats", variants)
+    if notebook.startswith("04"):
+        bad = [v for v in variants if not scales_ok(v)]
+        want = "scale sets ('global' or comma lists of 32/16/13)"
+    elif notebook.startswith("05"):
+        bad = [v for v in variants if v not in _CHOICES["fusion"]]
+        want = f"fusions among {list(_CHOICES['fusion'])}"
+    else:
+        return
+    if bad:
+        raise _err(notebook, "variants", f"{want}; bad: {bad}", variants)
+
+
+def _check_seeded(notebook: str, seeded: list, variants: list | None) -> None:
+    """Seeded variants must be variants of this notebook (components: the four labels of 08)."""
+    known = list(variants) if variants is not None else list(COMPONENT_LABELS)
+    if (not all(isinstance(v, str) for v in seeded) or len(set(seeded)) != len(seeded)
+            or not set(seeded) <= set(known)):
+        raise _err(notebook, "seeded_variants", f"distinct labels among {known}", seeded)
+
+
+def _check_configs(notebook: str, P: dict[str, Any]) -> None:
+    """Let the model and training configs check what they know (same messages as at training)."""
+    try:
+        if {"image_size", "fusion", "scales", "local_norm", "norm_window"} <= set(P):
+            scales = P["scales"] if P["scales"] == "global" else tuple(int(s) for s in P["scales"].split(","))
+            mc = ModelConfig(image_size=P["image_size"], fusion=P["fusion"], scales=scales,
+                             local_norm=P["local_norm"], norm_window=P["norm_window"])
+            if {"epochs", "batch_size", "lr", "lr_milestones"} <= set(P):
+                TrainConfig(epochs=P["epochs"], steps_per_epoch=P.get("steps_per_epoch") or None,
+                            batch_size=P["batch_size"], lr=P["lr"], lr_milestones=tuple(P["lr_milestones"]),
+                            lr_schedule=P.get("lr_schedule", "step"), warmup_steps=P.get("warmup_steps", 0),
+                            clean_steps=P.get("clean_steps", 0), random_ref=P.get("random_ref", "own"),
+                            seed=P.get("seed", 0), val_every=P.get("val_every", 1), model=mc)
+    except ValueError as e:
+        raise ParameterError(f"notebook {notebook}: {e}") from None

@@ -1,0 +1,192 @@
+"""The paper's evaluation protocol on the LineMOD-like splits, as reusable steps.
+
+For a split's model: retrieve (among the 13 benchmark objects) the test queries
+of the split's unseen and seen objects and the occluded (LM-O-like) test queries
+of its unseen objects (:func:`evaluate_split`); summarise splits in the shape of
+the paper's Table 1 (:func:`table1`); baselines on the same queries: HOG (nearest
+neighbour, textbook settings, exhaustive search) on every split, the learned
+Global descriptor on chosen splits (:func:`hog_baseline`, :func:`baseline_result`),
+in the shape of Table 2 (:func:`table2`). Percentages throughout.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..evaluation import paper
+from ..evaluation.baselines import HogModel
+from ..evaluation.metrics import Record, per_query_table, summarise_queries
+from ..search.retrieval import search_all
+from .pipeline import StudyData, encode_queries, evaluate, first, reference_bank
+
+
+def search_settings(method: str, k_ac: int, fps_k: int) -> dict[str, Any]:
+    """Keyword arguments of :func:`helpers.study.pipeline.evaluate` for "fast" (Algorithm 1) or "greedy"."""
+    if method == "fast":
+        return {"method": "fast", "k_ac": k_ac, "fps_k": fps_k}
+    if method == "greedy":
+        return {"method": "greedy"}
+    raise ValueError(f"eval_method: expected 'fast' or 'greedy', got {method!r}")
+
+
+def evaluate_split(model: Any, data: StudyData, split: int, search: dict[str, Any], seen_queries: int = 0,
+                   occluded_queries: int = 0, device: str = "auto", k_ac: int = 1024) -> dict[str, Any]:
+    """Unseen / seen / occluded-unseen results of one split's model.
+
+    ``seen_queries`` / ``occluded_queries`` cap the queries per object of those parts (0: all).
+    Returns {"model", "bank", "unseen", "seen", "occluded"} (each part an :func:`evaluate` dict).
+    """
+    m = data.manifest
+    bank = reference_bank(model, data, m.object_names("train"), device=device, k_ac=k_ac)
+    unseen, seen = m.split_objects(split), m.seen_objects(split)
+    return {"model": model, "bank": bank,
+            "unseen": evaluate(model, bank, {n: data.test_q[n] for n in unseen}, device=device, **search),
+            "seen": evaluate(model, bank, {n: first(data.test_q[n], seen_queries) for n in seen},
+                             device=device, **search),
+            "occluded": evaluate(model, bank, {n: first(data.occluded_q[n], occluded_queries) for n in unseen},
+                                 device=device, **search)}
+
+
+def split_tables(results: dict[int, dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(per-object table, per-query table) of all splits and parts, with ``split`` and ``part`` columns."""
+    per_object, per_query = [], []
+    for s, r in results.items():
+        for part in ("unseen", "seen", "occluded"):
+            df = r[part]["per_object"].reset_index()
+            df.insert(0, "part", part)
+            df.insert(0, "split", s)
+            per_object.append(df)
+            per_query.append(r[part]["per_query"].assign(split=s, part=part))
+    return pd.concat(per_object, ignore_index=True), pd.concat(per_query, ignore_index=True)
+
+
+def table1(results: dict[int, dict]) -> pd.DataFrame:
+    """Rows split #1..#3 + mean; ours beside the paper's LineMOD numbers."""
+    rows = []
+    for s, r in results.items():
+        rows.append({"split": f"#{s}", "unseen class_acc": r["unseen"]["means"]["class_acc"],
+                     "unseen rot_acc": r["unseen"]["means"]["rot_acc"],
+                     "seen class_acc": r["seen"]["means"]["class_acc"], "seen rot_acc": r["seen"]["means"]["rot_acc"],
+                     "occluded unseen rot_acc": r["occluded"]["means"]["rot_acc"],
+                     "unseen median_err_deg": r["unseen"]["means"]["median_err_deg"],
+                     "paper LineMOD unseen rot_acc": paper.LINEMOD_UNSEEN_ROT_ACC.get(s)})
+    df = pd.DataFrame(rows)
+    mean = {"split": "mean"}
+    for c in df.columns[1:]:
+        mean[c] = df[c].mean()
+    mean["paper LineMOD unseen rot_acc"] = paper.LINEMOD_UNSEEN_ROT_ACC["mean"] if len(results) == 3 else None
+    return pd.concat([df, pd.DataFrame([mean])], ignore_index=True)
+
+
+def paper_context_row() -> dict:
+    return {"paper LineMOD unseen class_acc (mean)": paper.LINEMOD_UNSEEN_CLASS_ACC_MEAN,
+            "paper LineMOD seen rot_acc (mean)": paper.LINEMOD_SEEN_ROT_ACC_MEAN,
+            "paper LineMOD-O unseen rot_acc (mean)": paper.LINEMOD_O_UNSEEN_ROT_ACC_MEAN}
+
+
+def accuracy_row(r: dict) -> dict:
+    return {"class_acc": r["means"]["class_acc"], "rot_acc": r["means"]["rot_acc"],
+            "median_err_deg": r["means"]["median_err_deg"]}
+
+
+def hog_baseline(data: StudyData, splits: tuple[int, ...] = (1, 2, 3), k_ac: int = 1024) -> dict[int, dict]:
+    """HOG nearest neighbour (Dalal-Triggs settings) on the unseen queries of each split, exhaustive
+    (greedy) search over the same references; it calibrates the benchmark's difficulty."""
+    bench = data.manifest.object_names("train")
+    hog = HogModel()
+    bank = reference_bank(hog, data, bench, device="cpu", k_ac=k_ac)
+    return {s: evaluate(hog, bank, {n: data.test_q[n] for n in data.manifest.split_objects(s)}, method="greedy",
+                        device="cpu") for s in splits}
+
+
+def baseline_result(model: Any, data: StudyData, split: int, search: dict[str, Any], device: str = "auto",
+                    k_ac: int = 1024) -> dict:
+    """A learned baseline (e.g. the Global descriptor) on split ``split``'s unseen queries, same search as ours."""
+    bank = reference_bank(model, data, data.manifest.object_names("train"), device=device, k_ac=k_ac)
+    return evaluate(model, bank, {n: data.test_q[n] for n in data.manifest.split_objects(split)}, device=device,
+                    **search)
+
+
+def baselines_table(hog: dict[int, dict], learned: dict[str, dict[int, dict]], search: str) -> pd.DataFrame:
+    """One row per (method, split): HOG (greedy) and each learned baseline (``search``)."""
+    rows = [{"method": "HOG", "split": s, "search": "greedy", **accuracy_row(r)} for s, r in hog.items()]
+    for name, per_split in learned.items():
+        rows += [{"method": name, "split": s, "search": search, **accuracy_row(r)} for s, r in per_split.items()]
+    return pd.DataFrame(rows)
+
+
+def baseline_per_query(per_split: dict[int, dict]) -> pd.DataFrame:
+    """Per-query results of a baseline over its splits (``split`` and ``part`` columns added)."""
+    return pd.concat([r["per_query"].assign(split=s, part="unseen") for s, r in per_split.items()],
+                     ignore_index=True)
+
+
+def table2(baselines: pd.DataFrame, ours: pd.DataFrame) -> pd.DataFrame:
+    """Mean unseen Rota. Acc. per method over the splits it ran on, beside the paper's."""
+    rows = []
+    for meth, g in baselines.groupby("method", sort=False):
+        splits = sorted(g["split"].unique())
+        rows.append({"method": meth, "splits": ",".join(map(str, splits)), "search": g["search"].iloc[0],
+                     "unseen rot_acc": g["rot_acc"].mean(), "unseen class_acc": g["class_acc"].mean(),
+                     "paper (LineMOD, 3 splits)": paper.BASELINES_UNSEEN_ROT_ACC.get(meth)})
+    splits = [int(str(s).lstrip("#")) for s in ours["split"] if str(s).startswith("#")]
+    ours_rows = ours[ours["split"].isin([f"#{s}" for s in splits])]
+    rows.append({"method": "Ours (multi-scale, adaptive fusion)", "splits": ",".join(map(str, splits)),
+                 "search": "as Table 1", "unseen rot_acc": ours_rows["unseen rot_acc"].mean(),
+                 "unseen class_acc": ours_rows["unseen class_acc"].mean(),
+                 "paper (LineMOD, 3 splits)": paper.BASELINES_UNSEEN_ROT_ACC["Ours (paper)"]})
+    return pd.DataFrame(rows)
+
+
+def held_out_result(model: Any, data: StudyData, search: dict[str, Any], device: str = "auto",
+                    k_ac: int = 1024) -> dict:
+    """Held-out objects (never trained on by any split) retrieved among ALL objects."""
+    m = data.manifest
+    bank = reference_bank(model, data, m.object_names(), device=device, k_ac=k_ac)
+    return evaluate(model, bank, {n: data.test_q[n] for n in m.held_out_objects()}, device=device, **search)
+
+
+# ------------------------------------------------------------------ fast vs greedy (paper Table 4)
+
+def query_features(model: Any, data: StudyData, objects: list[str], device: str = "auto", kind: str = "test_q"):
+    """(features (N, C, L), [(object, index)]) of the ``kind`` queries of ``objects``, in order
+    ("test_q": test queries; "val_q": held-out views, rendered for the seen objects' model selection)."""
+    import torch
+
+    if kind not in ("test_q", "val_q"):
+        raise ValueError(f"query_features: kind must be 'test_q' or 'val_q', got {kind!r}")
+    feats, meta = [], []
+    for n in objects:
+        q = encode_queries(model, getattr(data, kind)[n], device)
+        feats.append(q)
+        meta += [(n, i) for i in range(len(q))]
+    return torch.cat(feats), meta
+
+
+def timed_search(Q: Any, meta: list[tuple[str, int]], data: StudyData, bank: Any, scorer: Any,
+                 **search: Any) -> tuple[list, list]:
+    """One untimed warm-up on two queries, then every query: (metric records, predictions with seconds)."""
+    search_all(Q[:2], bank, scorer, progress=False, **search)
+    preds = search_all(Q, bank, scorer, progress=False, **search)
+    recs = [Record(n, p.obj_name, data.test_q[n].rotations[j].astype(np.float64), p.R_est,
+                   data.test_q[n].symmetries, f"{n}:{j}") for p, (n, j) in zip(preds, meta)]
+    return recs, preds
+
+
+def search_row(name: str, recs: list, preds: list) -> dict:
+    """Accuracy, seconds and comparisons per query of one search method, beside the paper's Table 4."""
+    _, means = summarise_queries(per_query_table(recs))
+    ref = paper.FAST_VS_GREEDY["greedy" if name == "greedy" else "fast"]
+    return {"method": name, "unseen rot_acc": means["rot_acc"], "unseen class_acc": means["class_acc"],
+            "median s/query": float(np.median([p.seconds for p in preds])),
+            "mean s/query": float(np.mean([p.seconds for p in preds])),
+            "mean comparisons/query": float(np.mean([p.n_comparisons for p in preds])),
+            "paper rot_acc": ref["rot_acc"], "paper s/query (V100, 13x10k)": ref["seconds_per_query"]}
+
+
+def same_prediction_share(a: list, b: list) -> float:
+    """Share of queries where two methods retrieve the same object and the same reference rotation."""
+    return float(np.mean([x.pred_obj == y.pred_obj and np.allclose(x.R_est, y.R_est) for x, y in zip(a, b)]))
