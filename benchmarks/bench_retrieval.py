@@ -17,6 +17,7 @@ import shutil
 import statistics
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -99,11 +100,11 @@ def _same(a, b) -> bool:
     return a.obj_index == b.obj_index and a.ref_index == b.ref_index
 
 
-def _search_timed(fn, queries, bank, scorer, **kw) -> tuple[list, dict]:
+def _search_timed(fn, queries, bank, scorer, *args, **kw) -> tuple[list, dict]:
     preds, secs, others = [], [], []
     for q in queries:
         with Probe() as p:
-            preds.append(fn(q, bank, scorer, **kw))
+            preds.append(fn(q, bank, scorer, *args, **kw))
         secs.append(p.wall)
         others.append(p.others)
     known = [o for o in others if o is not None]
@@ -120,6 +121,7 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
     """Fast vs greedy seconds/query over K objects x R references of float16 memmapped features."""
     import torch
 
+    from helpers.core.configs import SearchConfig
     from helpers.core.rotations import haar_uniform
     from helpers.search.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer, search_all
 
@@ -191,16 +193,15 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
             t0 = time.perf_counter()
             bank.anchor_feats(PAPER_K_AC)  # once per bank: anchors gathered into RAM
             anchor_gather_s = time.perf_counter() - t0
-            fast_search(warm, bank, scorer, k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)  # warm-up
-            fp, fast = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer,
-                                     k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)
+            fast_cfg = SearchConfig("fast", k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)
+            fast_search(warm, bank, scorer, fast_cfg)  # warm-up
+            fp, fast = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, fast_cfg)
             log(f"{key}: fast {fast['s_per_query_median']:.2f} s/query, "
                 f"{fast['comparisons_per_query_median']:.0f} comparisons")
             wait_quiet()
             qb = torch.stack(queries[:cfg.retr_batch_queries])
             with Probe() as pb:
-                bp = search_all(qb, bank, scorer, method="fast", progress=False, query_batch=cfg.retr_query_batch,
-                                k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)
+                bp = search_all(qb, bank, scorer, replace(fast_cfg, query_batch=cfg.retr_query_batch), progress=False)
             fast_batched = {"n_queries": len(bp), "query_batch": cfg.retr_query_batch,
                             "wall_s": pb.wall, "s_per_query_mean": pb.wall / len(bp),
                             "s_per_query_median": statistics.median(p.seconds for p in bp),
@@ -214,16 +215,15 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
                                     "an equal share of its batch's anchor pass; s_per_query_mean = wall / n"}
             log(f"{key}: fast batched {fast_batched['s_per_query_mean']:.2f} s/query")
             wait_quiet()
-            c2f_kw = {"k_ac": PAPER_K_AC, "fps_k": PAPER_FPS_K, "coarse_k": C2F_COARSE_K,
-                      "refine_objects": C2F_REFINE_OBJECTS}
-            fast_search(warm, bank, scorer, **c2f_kw)  # warm-up
-            cp, c2f = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, **c2f_kw)
+            c2f_cfg = replace(fast_cfg, method="c2f", coarse_k=C2F_COARSE_K, refine_objects=C2F_REFINE_OBJECTS)
+            fast_search(warm, bank, scorer, c2f_cfg)  # warm-up
+            cp, c2f = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, c2f_cfg)
             log(f"{key}: c2f {c2f['s_per_query_median']:.3f} s/query, "
                 f"{c2f['comparisons_per_query_median']:.0f} comparisons")
             wait_quiet()
-            halving_kw = {**c2f_kw, "refine_objects": C2F_HALVING_REFINE_OBJECTS, "halving": True}
-            fast_search(warm, bank, scorer, **halving_kw)  # warm-up
-            hp, c2fh = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, **halving_kw)
+            halving_cfg = replace(c2f_cfg, refine_objects=C2F_HALVING_REFINE_OBJECTS, halving=True)
+            fast_search(warm, bank, scorer, halving_cfg)  # warm-up
+            hp, c2fh = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, halving_cfg)
             log(f"{key}: c2f halving {c2fh['s_per_query_median']:.3f} s/query, "
                 f"{c2fh['comparisons_per_query_median']:.0f} comparisons")
             wait_quiet()
@@ -292,7 +292,7 @@ def bench_real_agreement(cfg: BenchConfig, checkpoint: str | None = None, tmp_ro
     agreement and Rota. Acc."""
     import torch
 
-    from helpers.core.configs import QueryStyle, RenderConfig
+    from helpers.core.configs import QueryStyle, RenderConfig, SearchConfig
     from helpers.data.datasets import ViewSetSpec, render_sets
     from helpers.data.manifest import load_manifest
     from helpers.evaluation.metrics import Record, evaluate_predictions
@@ -336,14 +336,15 @@ def bench_real_agreement(cfg: BenchConfig, checkpoint: str | None = None, tmp_ro
     scorer = model_scorer(model, "cpu")
     flat = [(o, qv, qf[i]) for o, (qv, qf) in enumerate(zip(queries, q_feats)) for i in range(len(qf))]
     scaled_c2f = scaled_c2f_params(cfg.real_refs)
-    fast_search(flat[0][2], bank, scorer, **scaled)  # warm-up
+    fast_cfg, c2f_cfg = SearchConfig("fast", **scaled), SearchConfig("c2f", **scaled_c2f)
+    fast_search(flat[0][2], bank, scorer, fast_cfg)  # warm-up
     wait_quiet()
     q_list = [f for _, _, f in flat]
     gp, greedy = _search_timed(greedy_search, q_list, bank, scorer, group=1024)
-    fp, fast = _search_timed(fast_search, q_list, bank, scorer, **scaled)
-    cp, c2f = _search_timed(fast_search, q_list, bank, scorer, **scaled_c2f)
+    fp, fast = _search_timed(fast_search, q_list, bank, scorer, fast_cfg)
+    cp, c2f = _search_timed(fast_search, q_list, bank, scorer, c2f_cfg)
     hp, c2fh = _search_timed(fast_search, q_list, bank, scorer,
-                             **{**scaled_c2f, "refine_objects": C2F_HALVING_REFINE_OBJECTS, "halving": True})
+                             replace(c2f_cfg, refine_objects=C2F_HALVING_REFINE_OBJECTS, halving=True))
 
     # Records need each query's index within its object.
     idx_in_obj, seen = [], {}

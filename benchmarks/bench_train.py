@@ -223,7 +223,7 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
     """Training step A (git 1c2d2ee) vs B (today) at ``train_ab_size``, and data vs compute per step.
 
     A and B run in this process on the same batches (built once by
-    ``helpers.training.train._Batcher`` from a synthetic set, as ``train()`` builds them)
+    ``helpers.training.batches._Batcher`` from a synthetic set, as ``train()`` builds them)
     from the same initial weights and seed, in interleaved blocks A, B, A, B, ...
     of ``train_ab_steps`` steps each (fresh Adam per block), so drift of the
     machine's speed hits both alike. The losses after N steps must agree to
@@ -235,7 +235,7 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
 
     from helpers.core.configs import AugmentConfig
     from helpers.net.model import images_to_tensor
-    from helpers.training.train import _Batcher, _order_stream
+    from helpers.training.batches import _Batcher, _order_stream
 
     size, b, n_steps = cfg.train_ab_size, cfg.train_ab_batch, cfg.train_ab_steps
     step, which = _train_step_fn()
@@ -367,7 +367,7 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
                               "queries_per_object": cfg.train_ab_queries_per_object,
                               "query_side": int(round(size * cfg.train_ab_context)), "masks": True,
                               "augment": "AugmentConfig() defaults", "random_ref": "own"},
-            "note": "data = helpers.training.train._Batcher.make (query views with context, augmentation incl. in-plane "
+            "note": "data = helpers.training.batches._Batcher.make (query views with context, augmentation incl. in-plane "
                     "re-crop from the mask, nearest-rotation positives, random references) + images_to_tensor, "
                     "as train() does before each step; compute = B's train_step median over the A/B blocks; "
                     "train() runs them one after the other, so a step costs about their sum"},

@@ -56,6 +56,7 @@ def bench_retrieval(ctx: Ctx, cap_s: float, size: int, out: dict) -> dict:
     from helpers.core.configs import ModelConfig
     from helpers.core.rotations import haar_uniform
     from helpers.net.model import OrientationNet
+    from helpers.core.configs import SearchConfig
     from helpers.search.retrieval import fast_search, greedy_search, model_scorer, search_all
 
     t_sec = time.perf_counter()
@@ -146,14 +147,14 @@ def bench_retrieval(ctx: Ctx, cap_s: float, size: int, out: dict) -> dict:
     if ctx.cuda:
         out["cuda_memory_after_bank"] = cuda_mem()
 
-    def timed_queries(fn, bk, qs, deadline, **kw):
+    def timed_queries(fn, bk, qs, deadline, *args, **kw):
         preds, secs = [], []
         for q in qs:
             if secs and time.perf_counter() + max(secs) > deadline:
                 break
             ctx.sync()
             t0 = time.perf_counter()
-            preds.append(fn(q, bk, scorer, **kw))
+            preds.append(fn(q, bk, scorer, *args, **kw))
             ctx.sync()
             secs.append(time.perf_counter() - t0)
         comps = [p.n_comparisons for p in preds]
@@ -165,12 +166,12 @@ def bench_retrieval(ctx: Ctx, cap_s: float, size: int, out: dict) -> dict:
 
     # ---- fast (single query)
     t0 = time.perf_counter()
-    fast_search(warm, bank, scorer, k_ac=k_ac, fps_k=fps_k)
+    fast_cfg = SearchConfig("fast", k_ac=k_ac, fps_k=fps_k)
+    fast_search(warm, bank, scorer, fast_cfg)
     ctx.sync()
     out["fast_warmup_s"] = time.perf_counter() - t0
     left = stop_at - time.perf_counter()
-    fp, fast = timed_queries(fast_search, bank, queries[:a.fast_queries], time.perf_counter() + 0.3 * left,
-                             k_ac=k_ac, fps_k=fps_k)
+    fp, fast = timed_queries(fast_search, bank, queries[:a.fast_queries], time.perf_counter() + 0.3 * left, fast_cfg)
     out["fast"] = fast
     out["cut_short"] |= fast["cut_short"]
     _log(f"retrieval fast: {fast['s_per_query_median']:.3f} s/query, "
@@ -217,7 +218,7 @@ def bench_retrieval(ctx: Ctx, cap_s: float, size: int, out: dict) -> dict:
             qb = torch.stack(queries[:qb_n])
             ctx.sync()
             t0 = time.perf_counter()
-            bp = search_all(qb, bank, scorer, method="fast", progress=False, query_batch=qb_n, k_ac=k_ac, fps_k=fps_k)
+            bp = search_all(qb, bank, scorer, SearchConfig("fast", k_ac=k_ac, fps_k=fps_k, query_batch=qb_n), progress=False)
             ctx.sync()
             wall = time.perf_counter() - t0
             out["fast_batched"] = {

@@ -28,6 +28,7 @@ import statistics
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import helpers.net.model as hm
     import helpers.search.retrieval as hr
+    from helpers.core.configs import SearchConfig
     from helpers.core.rotations import haar_uniform
     from helpers.net import fusion_kernel
 
@@ -112,10 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     queries = [torch.from_numpy(_smooth_features(w["bases"][o], haar_uniform(1, seed=100 + i), c, length, 1.0, rng)[0])
                for i, o in enumerate(objs)]
     scorer = hr.model_scorer(model)
-    base = {"k_ac": PAPER_K_AC, "fps_k": PAPER_FPS_K}
-    c2f = {**base, "coarse_k": C2F_COARSE_K, "refine_objects": C2F_REFINE_OBJECTS}
+    base = SearchConfig("fast", k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)
+    c2f = replace(base, method="c2f", coarse_k=C2F_COARSE_K, refine_objects=C2F_REFINE_OBJECTS)
     methods = {"fast": base, "c2f": c2f,
-               "c2f_halving": {**c2f, "refine_objects": C2F_HALVING_REFINE_OBJECTS, "halving": True}}
+               "c2f_halving": replace(c2f, refine_objects=C2F_HALVING_REFINE_OBJECTS, halving=True)}
     new_chunk, new_rf = hm.OrientationNet._score_chunk, hr.ReferenceBank.ref_feats
     variants = {"A": (_old_score_chunk(fusion_kernel), _old_ref_feats, False), "B": (new_chunk, new_rf, True)}
 
@@ -127,11 +129,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with Probe() as probe:
             for i, q in enumerate(queries):
-                for m, kw in methods.items():
+                for m, cfg in methods.items():
                     for v in ("A", "B") if i % 2 == 0 else ("B", "A"):  # alternate who goes first
                         use(v)
                         t = time.perf_counter()
-                        p = hr.fast_search(q, bank, scorer, **kw)
+                        p = hr.fast_search(q, bank, scorer, cfg)
                         secs[m][v].append(time.perf_counter() - t)
                         preds[m][v].append((p.obj_index, p.ref_index, p.n_comparisons))
             for i, q in enumerate(queries[:args.greedy_queries]):

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers.core.configs import TlessConfig
 from helpers.data.bop import iter_scene_instances, load_bop_views, load_models_info
 from helpers.data.bop_export import export_tless_like, read_results_csv, tless_like_results, write_results_csv
-from helpers.data.tless import TlessConfig, load_tless
+from helpers.data.tless import load_tless
 from helpers.evaluation.baselines import HogModel
 from helpers.study.tless_protocol import evaluate_tless
 

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from test_retrieval import cosine_scorer
 
+from helpers.core.configs import SearchConfig
 from helpers.core.rotations import haar_uniform
 from helpers.search.c2f_select import c2f_candidates, select_c2f
 from helpers.search.retrieval import ReferenceBank, search_all
 
 K, R, K_AC = 5, 400, 64
-BASE = {"k_ac": K_AC, "fps_k": 16, "schedule": "converge"}
+BASE = SearchConfig("fast", k_ac=K_AC, fps_k=16, schedule="converge")
 
 
 def noisy_setup(noise: float, n_q: int = 30, seed: int = 0):
@@ -47,9 +50,10 @@ def test_cheapest_candidate_that_agrees_enough_is_chosen():
     met = table[(table["family"] == "one cut") & table["met"]]
     assert one["mean_comparisons"] == met["mean_comparisons"].min()
     # What is reported is what the search does: the chosen settings reproduce the agreement.
-    fast = search_all(q, bank, cosine_scorer, method="fast", progress=False, **BASE)
-    again = search_all(q, bank, cosine_scorer, method="c2f", progress=False, **BASE, coarse_k=one["coarse_k"],
-                       refine_objects=one["refine_objects"], halving=one["halving"])
+    fast = search_all(q, bank, cosine_scorer, BASE, progress=False)
+    c2f = replace(BASE, method="c2f", coarse_k=one["coarse_k"], refine_objects=one["refine_objects"],
+                  halving=one["halving"])
+    again = search_all(q, bank, cosine_scorer, c2f, progress=False)
     assert [(p.obj_index, p.ref_index) for p in again] == [(p.obj_index, p.ref_index) for p in fast]
     assert chosen["halving"]["halving"] is True
 

@@ -104,7 +104,7 @@ def _grad_worker(rank: int, world: int, port: int, out: str) -> None:
 def _grad_setup():
     from helpers.core.configs import AugmentConfig
     from helpers.net.model import OrientationNet
-    from helpers.training.train import _Batcher
+    from helpers.training.batches import _Batcher
 
     torch.manual_seed(5)
     model = OrientationNet(_cfg().model)

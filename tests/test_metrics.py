@@ -88,29 +88,3 @@ def test_mapping_records_and_errors():
         rotation_errors_deg(np.stack([R, R]), np.stack([R, R, R]))
 
 
-def _pq(ok: list[bool], objs: list[str]) -> "pd.DataFrame":
-    import pandas as pd
-
-    return pd.DataFrame({"query_id": [f"q{i}" for i in range(len(ok))], "obj": objs, "rot_ok": ok})
-
-
-def test_paired_difference_separates_signal_from_noise():
-    from helpers.evaluation.metrics import paired_difference
-
-    objs = ["a"] * 50 + ["b"] * 50
-    base = [False] * 100
-    better = [i % 2 == 0 for i in range(100)]  # +50 points, every changed query in one direction
-    r = paired_difference(_pq(base, objs), _pq(better, objs))
-    assert r["diff_pts"] == pytest.approx(50.0) and r["verdict"] == "b > a" and r["ci"][0] > 30
-    assert paired_difference(_pq(better, objs), _pq(base, objs))["verdict"] == "b < a"
-    # One query of 100 flips: a 1-point difference, which the interval does not distinguish from 0.
-    one = list(base)
-    one[3] = True
-    r = paired_difference(_pq(base, objs), _pq(one, objs))
-    assert r["diff_pts"] == pytest.approx(1.0) and r["verdict"] == "within noise" and r["ci"][0] <= 0 <= r["ci"][1]
-    # Objects weigh equally: a gain on the 10-query object counts as much as on the 90-query one.
-    objs2 = ["a"] * 10 + ["b"] * 90
-    gain_small = [i < 10 for i in range(100)]
-    assert paired_difference(_pq(base, objs2), _pq(gain_small, objs2))["diff_pts"] == pytest.approx(50.0)
-    with pytest.raises(ValueError, match="same queries"):
-        paired_difference(_pq(base, objs), _pq(base[:99], objs[:99]))

@@ -17,34 +17,54 @@ def test_runner_executes_a_notebook_and_builds_the_report():
     assert json.loads((out / "timings.json").read_text())["01_render"] > 0
 
 
+def _claim(diff: float, ci: list[float], verdict: str, compare: str = "b vs a", **extra) -> dict:
+    """A paired claim as helpers.evaluation.stats.claim writes it."""
+    return {"compare": compare, "diff_pts": diff, "ci": ci, "level": 0.95, "n_queries": 100,
+            "point_estimate_agrees": diff > 0, "seeds": [1, 1], "matched_seeds": 1, "per_seed_diff_pts": [diff],
+            "seed_spread_pts": None, "verdict": verdict, **extra}
+
+
 def test_report_marks_missing_sections_and_trends(tmp_path):
     d = tmp_path / "x" / "05_ablation_fusion"
     d.mkdir(parents=True)
     (d / "metrics.json").write_text(json.dumps({
         "table": [{"variant": "avg", "unseen rot_acc": 10.0}, {"variant": "adaptive", "unseen rot_acc": 20.0}],
-        "trend": {"adaptive_is_best": True, "paper_order_avg<sigmoid<softmax<adaptive": False}}))
+        "split": 1, "trend": {"adaptive_beats_avg": _claim(10.0, [4.0, 16.0], "holds", "adaptive vs avg")}}))
     rep = build_report("x", root=tmp_path).read_text()
     assert "## 1 · Rendered benchmark" in rep and "_not run_" in rep
-    assert "adaptive is best: **holds**" in rep
-    assert "**does not hold**" in rep
-    assert "| adaptive" in rep
+    assert "adaptive beats avg: the point estimate agrees (adaptive vs avg: +10.0 pts, 95 % CI [+4.0, +16.0]): " \
+           "**holds**" in rep
+    assert "| adaptive" in rep and "Not read" not in rep
+
+
+def test_a_folder_written_by_other_code_is_named_not_read(tmp_path, capsys):
+    d = tmp_path / "w" / "08_components"
+    d.mkdir(parents=True)
+    old = {"holds": True, "compare": "b vs a", "diff_pts": 3.0, "ci": [1.0, 5.0], "verdict": "significant"}
+    (d / "metrics.json").write_text(json.dumps({"table": [{"variant": "a", "unseen rot_acc": 1.0}], "split": 1,
+                                                "trend": {"both_beats_neither": old}}))
+    rep = build_report("w", root=tmp_path).read_text()
+    assert "**Not read** (written by another version of the code; rerun these notebooks): `08_components`" in rep
+    assert "rerun notebook 08_components" in rep and "rerun notebook 08_components" in capsys.readouterr().err
+    assert json.loads((tmp_path / "w" / "claims.json").read_text()) == []
 
 
 def test_report_states_noise_of_claims(tmp_path):
     d = tmp_path / "y" / "08_components"
     d.mkdir(parents=True)
-    c = {"holds": True, "compare": "b vs a", "diff_pts": 3.0, "ci": [-1.5, 7.25], "verdict": "within noise"}
-    chain = {"holds": False, "verdict": "within noise", "pairs": [c, {**c, "holds": False, "diff_pts": -2.0}]}
-    (d / "metrics.json").write_text(json.dumps({"table": [{"variant": "a", "unseen rot_acc": 1.0}],
+    c = _claim(3.0, [-1.5, 7.25], "within noise")
+    chain = {"point_estimate_agrees": False, "verdict": "within noise",
+             "pairs": [c, _claim(-2.0, [-1.5, 7.25], "within noise")]}
+    (d / "metrics.json").write_text(json.dumps({"table": [{"variant": "a", "unseen rot_acc": 1.0}], "split": 1,
                                                 "trend": {"both_beats_neither": c, "order": chain},
                                                 "noise": "paired bootstrap"}))
     rep = build_report("y", root=tmp_path).read_text()
     claims = json.loads((tmp_path / "y" / "claims.json").read_text())
     assert {c["id"] for c in claims} == {"components:both_beats_neither", "components:order:b>a"}
     assert "## Claims (`claims.json`)" in rep and "| `components:both_beats_neither` |" in rep
-    assert "both beats neither: **holds** in the point estimate (b vs a: +3.0 pts, 95 % CI [-1.5, +7.2]): " \
+    assert "both beats neither: the point estimate agrees (b vs a: +3.0 pts, 95 % CI [-1.5, +7.2]): " \
            "**within noise**" in rep
-    assert "order: **does not hold** in the point estimate (b vs a +3.0 [-1.5, +7.2]; b vs a -2.0" in rep
+    assert "order: the point estimate disagrees (b vs a +3.0 [-1.5, +7.2]; b vs a -2.0" in rep
     assert "_Noise: paired bootstrap._" in rep
 
 
@@ -65,8 +85,8 @@ def test_tables_format_numbers_by_magnitude():
 def test_report_shows_seed_spread_and_a_reexecution(tmp_path):
     d = tmp_path / "z" / "05_ablation_fusion"
     d.mkdir(parents=True)
-    c = {"holds": True, "compare": "adaptive vs avg", "diff_pts": 3.0, "ci": [1.0, 5.0], "seeds": [2, 2],
-         "matched_seeds": 2, "per_seed_diff_pts": [2.0, 4.0], "seed_spread_pts": 5.9, "verdict": "within seed spread"}
+    c = _claim(3.0, [1.0, 5.0], "within seed spread", "adaptive vs avg", seeds=[2, 2], matched_seeds=2,
+               per_seed_diff_pts=[2.0, 4.0], seed_spread_pts=5.9)
     (d / "metrics.json").write_text(json.dumps({"table": [{"variant": "avg", "unseen rot_acc": 1.0}], "split": 1,
                                                 "trend": {"adaptive_beats_avg": c},
                                                 "seeds": {"avg": {"compare": "avg seed 2 vs seed 1", "diff_pts": -5.6,

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from helpers.core.configs import SearchConfig
 from helpers.core.rotations import geodesic_deg, haar_uniform, nearest
 from helpers.search.retrieval import ReferenceBank, authors_sizes, fast_search, greedy_search, model_scorer, search_all
 
@@ -59,7 +60,7 @@ def test_exact_reference_found():
     assert np.allclose(p.R_est, bank.rotations[17])
     # A query equal to an anchor is found by the fast search too (whatever the feature geometry).
     a = int(bank.anchors(50)[7])
-    pf = fast_search(feats[1][a].astype(np.float32)[None], bank, cosine_scorer, k_ac=50, fps_k=16)
+    pf = fast_search(feats[1][a].astype(np.float32)[None], bank, cosine_scorer, SearchConfig(k_ac=50, fps_k=16))
     assert (pf.obj_index, pf.ref_index) == (1, a) and pf.score == pytest.approx(1.0, abs=1e-5)
 
 
@@ -69,8 +70,8 @@ def test_fast_equals_greedy_on_smooth_scores():
     truths = haar_uniform(25, seed=5)
     objs = np.arange(25) % K
     queries = np.stack([synthetic_feats(truths[i:i + 1], objs[i], K)[0] for i in range(25)])
-    greedy = search_all(queries, bank, rotation_scorer, method="greedy", progress=False, group=512)
-    fast = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=64, fps_k=32)
+    greedy = search_all(queries, bank, rotation_scorer, SearchConfig(method="greedy", group=512), progress=False)
+    fast = search_all(queries, bank, rotation_scorer, SearchConfig(method="fast", k_ac=64, fps_k=32), progress=False)
     nn_idx, _ = nearest(truths, bank.rotations)
     for i, (g, f) in enumerate(zip(greedy, fast)):
         assert g.obj_index == objs[i] and g.ref_index == nn_idx[i]  # greedy = true nearest reference
@@ -79,8 +80,7 @@ def test_fast_equals_greedy_on_smooth_scores():
         # Anchors of every object, plus a few levels of at most fps_k each.
         assert K * 64 < f.n_comparisons < K * 64 + 12 * 32
     # The authors' fixed schedule lands close to greedy (not necessarily on it).
-    auth = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=64, fps_k=32,
-                      schedule="authors")
+    auth = search_all(queries, bank, rotation_scorer, SearchConfig(method="fast", k_ac=64, fps_k=32, schedule="authors"), progress=False)
     err = geodesic_deg(np.stack([a.R_est for a in auth]), np.stack([g.R_est for g in greedy]))
     assert all(a.obj_index == g.obj_index for a, g in zip(auth, greedy))
     assert np.median(err) < 25
@@ -96,10 +96,10 @@ def test_comparisons_not_double_counted():
 
     bank = synthetic_bank(3, 500, k_ac=40)
     q = synthetic_feats(haar_uniform(1, seed=9), 1, 3)[0]
-    p = fast_search(q, bank, counting, k_ac=40, fps_k=20)
+    p = fast_search(q, bank, counting, SearchConfig(k_ac=40, fps_k=20))
     assert sum(calls) == p.n_comparisons
     # All references already anchors: nothing left to refine beyond them.
-    p_all = fast_search(q, bank, rotation_scorer, k_ac=500)
+    p_all = fast_search(q, bank, rotation_scorer, SearchConfig(k_ac=500))
     assert p_all.n_comparisons == 3 * 500
 
 
@@ -114,12 +114,16 @@ def test_bad_inputs():
     bank = synthetic_bank(2, 50, k_ac=10)
     with pytest.raises(ValueError, match="does not match the bank"):
         greedy_search(np.zeros((5, 1), np.float32), bank, rotation_scorer)
-    with pytest.raises(ValueError, match="schedule"):
-        fast_search(np.zeros((11, 1), np.float32), bank, rotation_scorer, schedule="nope")
+    with pytest.raises(ValueError, match="SearchConfig.schedule: expected one of"):
+        SearchConfig(schedule="nope")
+    with pytest.raises(ValueError, match="cfg.method is 'greedy'"):
+        fast_search(np.zeros((11, 1), np.float32), bank, rotation_scorer, SearchConfig("greedy"))
     with pytest.raises(ValueError, match="expected .50, C, L."):
         ReferenceBank([np.zeros((49, 11, 1))], bank.rotations, ["x"])
-    with pytest.raises(ValueError, match="method"):
-        search_all(np.zeros((1, 11, 1)), bank, rotation_scorer, method="slow")
+    with pytest.raises(ValueError, match="SearchConfig.method: expected one of"):
+        SearchConfig(method="slow")
+    with pytest.raises(ValueError, match=r"query_feats must be \(N,C,L\)"):
+        search_all(np.zeros((11, 1)), bank, rotation_scorer, SearchConfig())
 
 
 def test_model_scorer_duck_typed():
@@ -141,7 +145,7 @@ def test_fast_scales_to_13_objects_10k_refs():
     truths = haar_uniform(5, seed=11)
     queries = np.stack([synthetic_feats(truths[i:i + 1], i % K, K)[0] for i in range(5)])
     t0 = time.perf_counter()
-    preds = search_all(queries, bank, rotation_scorer, method="fast", progress=False)
+    preds = search_all(queries, bank, rotation_scorer, SearchConfig(method="fast"), progress=False)
     t_q = (time.perf_counter() - t0) / len(queries)
     nn_idx, nn_ang = nearest(truths, bank.rotations)
     for i, p in enumerate(preds):
@@ -169,8 +173,7 @@ def test_batched_anchor_stage_matches_single_queries():
     bank = synthetic_bank(K, R, dtype=np.float16, k_ac=48)
     truths = haar_uniform(11, seed=8)
     queries = np.stack([synthetic_feats(truths[i:i + 1], i % K, K)[0] for i in range(11)])
-    one = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=48, fps_k=16,
-                     query_batch=1)
+    one = search_all(queries, bank, rotation_scorer, SearchConfig(method="fast", k_ac=48, fps_k=16, query_batch=1), progress=False)
     calls = []
 
     def spy(q, r):
@@ -178,7 +181,7 @@ def test_batched_anchor_stage_matches_single_queries():
         return batched_rotation_scorer(q, r)
 
     spy.batched = True
-    many = search_all(queries, bank, spy, method="fast", progress=False, k_ac=48, fps_k=16, query_batch=4)
+    many = search_all(queries, bank, spy, SearchConfig(method="fast", k_ac=48, fps_k=16, query_batch=4), progress=False)
     for a, b in zip(one, many):
         assert (a.obj_index, a.ref_index, a.n_comparisons) == (b.obj_index, b.ref_index, b.n_comparisons)
         assert a.score == pytest.approx(b.score, abs=1e-3)  # float16 refs, other summation order
@@ -193,8 +196,8 @@ def test_float16_bank_reaches_scorer_as_float16():
     assert bank.chunk(1, 0, 7).shape == (7, 11, 1)
     assert bank.anchor_feats(10)[1].shape == (10, 11, 1)
     assert synthetic_bank(2, 60, dtype=np.float64, k_ac=10).ref_feats(0, np.array([0])).dtype == torch.float32
-    with pytest.raises(ValueError, match="query_batch"):
-        search_all(np.zeros((1, 11, 1), np.float32), bank, rotation_scorer, method="fast", query_batch=0)
+    with pytest.raises(ValueError, match="SearchConfig.query_batch: expected an int >= 1"):
+        SearchConfig(method="fast", query_batch=0)
 
 
 def test_coarse_to_fine_matches_fast_and_scores_fewer_pairs():
@@ -203,16 +206,14 @@ def test_coarse_to_fine_matches_fast_and_scores_fewer_pairs():
     truths = haar_uniform(20, seed=7)
     objs = np.arange(20) % K
     queries = np.stack([synthetic_feats(truths[i:i + 1], objs[i], K)[0] for i in range(20)])
-    fast = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=128, fps_k=32)
-    c2f = search_all(queries, bank, rotation_scorer, method="c2f", progress=False, k_ac=128, fps_k=32,
-                     coarse_k=16, refine_objects=2)
+    fast = search_all(queries, bank, rotation_scorer, SearchConfig(method="fast", k_ac=128, fps_k=32), progress=False)
+    c2f = search_all(queries, bank, rotation_scorer, SearchConfig(method="c2f", k_ac=128, fps_k=32, coarse_k=16, refine_objects=2), progress=False)
     for f, c in zip(fast, c2f):
         assert (c.obj_index, c.ref_index) == (f.obj_index, f.ref_index)
         # Coarse anchors of every object + the rest of the anchors of 2 objects + the same refinement.
         assert c.n_comparisons == f.n_comparisons - (K - 2) * (128 - 16)
     # Every object refined: exactly the authors' category stage.
-    full = search_all(queries[:3], bank, rotation_scorer, method="c2f", progress=False, k_ac=128, fps_k=32,
-                      coarse_k=16, refine_objects=K)
+    full = search_all(queries[:3], bank, rotation_scorer, SearchConfig(method="c2f", k_ac=128, fps_k=32, coarse_k=16, refine_objects=K), progress=False)
     assert [(p.obj_index, p.ref_index, p.n_comparisons) for p in full] == \
         [(p.obj_index, p.ref_index, p.n_comparisons) for p in fast[:3]]
 
@@ -226,10 +227,10 @@ def test_coarse_to_fine_counts_every_scored_pair_once():
 
     bank = synthetic_bank(4, 600, k_ac=64)
     q = synthetic_feats(haar_uniform(1, seed=3), 2, 4)[0]
-    p = fast_search(q, bank, counting, k_ac=64, fps_k=16, coarse_k=8, refine_objects=1)
+    p = fast_search(q, bank, counting, SearchConfig("c2f", k_ac=64, fps_k=16, coarse_k=8, refine_objects=1))
     assert sum(calls) == p.n_comparisons and p.obj_index == 2
-    with pytest.raises(ValueError, match="coarse_k and refine_objects"):
-        fast_search(q, bank, rotation_scorer, k_ac=64, coarse_k=8, refine_objects=0)
+    with pytest.raises(ValueError, match="SearchConfig.refine_objects: expected an int >= 1"):
+        SearchConfig("c2f", k_ac=64, coarse_k=8, refine_objects=0)
 
 
 def test_coarse_to_fine_halving_rounds():
@@ -245,23 +246,21 @@ def test_coarse_to_fine_halving_rounds():
         calls.append(len(r))
         return rotation_scorer(q, r)
 
-    fast = search_all(queries, bank, rotation_scorer, method="fast", progress=False, k_ac=128, fps_k=32)
+    fast = search_all(queries, bank, rotation_scorer, SearchConfig(method="fast", k_ac=128, fps_k=32), progress=False)
     for f, qf in zip(fast, queries):
         calls.clear()
-        c = fast_search(qf, bank, counting, k_ac=128, fps_k=32, coarse_k=16, refine_objects=2, halving=True)
+        c = fast_search(qf, bank, counting, SearchConfig("c2f", k_ac=128, fps_k=32, coarse_k=16, refine_objects=2, halving=True))
         assert (c.obj_index, c.ref_index) == (f.obj_index, f.ref_index)
         assert c.n_comparisons == f.n_comparisons - (K * 128 - (K * 16 + 3 * 16 + 2 * 96))
         assert sum(calls) == c.n_comparisons
         assert calls[0] == K * 16  # the coarse round is one scorer call
-    via_all = search_all(queries[:2], bank, rotation_scorer, method="c2f", progress=False, k_ac=128, fps_k=32,
-                         coarse_k=16, refine_objects=2, halving=True)
-    assert [p.n_comparisons for p in via_all] == [fast_search(q, bank, rotation_scorer, k_ac=128, fps_k=32,
-                                                              coarse_k=16, refine_objects=2, halving=True).n_comparisons
+    via_all = search_all(queries[:2], bank, rotation_scorer, SearchConfig(method="c2f", k_ac=128, fps_k=32, coarse_k=16, refine_objects=2, halving=True), progress=False)
+    assert [p.n_comparisons for p in via_all] == [fast_search(q, bank, rotation_scorer, SearchConfig("c2f", k_ac=128, fps_k=32, coarse_k=16, refine_objects=2, halving=True)).n_comparisons
                                                   for q in queries[:2]]
     # Down to one object: 6 x 16, 3 x 16, 2 x 32, then the last one its other 64 anchors.
     for f, qf in zip(fast[:4], queries[:4]):
         calls.clear()
-        one = fast_search(qf, bank, counting, k_ac=128, fps_k=32, coarse_k=16, refine_objects=1, halving=True)
+        one = fast_search(qf, bank, counting, SearchConfig("c2f", k_ac=128, fps_k=32, coarse_k=16, refine_objects=1, halving=True))
         assert calls[:4] == [K * 16, 16, 16, 16] and sum(calls[4:6]) == 64 and calls[6] == 64
         assert one.obj_index == f.obj_index and one.n_comparisons == sum(calls)
     with pytest.raises(ValueError, match="anchor_head_feats"):
@@ -299,10 +298,11 @@ def test_row_indexed_scoring_reads_the_bank_in_place_and_changes_nothing(tmp_pat
 
     gathered.batched = True
     q = torch.nn.functional.normalize(torch.randn(4, c, length, generator=g), dim=1)
-    for kw in ({}, {"coarse_k": 8, "refine_objects": 2}, {"coarse_k": 8, "refine_objects": 1, "halving": True}):
+    for cfg in (SearchConfig(k_ac=32, fps_k=16), SearchConfig("c2f", k_ac=32, fps_k=16, coarse_k=8, refine_objects=2),
+                SearchConfig("c2f", k_ac=32, fps_k=16, coarse_k=8, refine_objects=1, halving=True)):
         for i in range(len(q)):
-            a = fast_search(q[i], bank, with_rows, k_ac=32, fps_k=16, **kw)
-            b = fast_search(q[i], bank, gathered, k_ac=32, fps_k=16, **kw)
+            a = fast_search(q[i], bank, with_rows, cfg)
+            b = fast_search(q[i], bank, gathered, cfg)
             assert (a.obj_index, a.ref_index, a.n_comparisons) == (b.obj_index, b.ref_index, b.n_comparisons)
             assert a.score == pytest.approx(b.score, abs=1e-6)
 
@@ -316,5 +316,5 @@ def test_duck_typed_model_without_rows_gets_gathered_refs():
     assert not scorer.rows
     bank = synthetic_bank(2, 100, k_ac=20)
     q = synthetic_feats(bank.rotations[42:43], 1, 2)[0]
-    p = fast_search(q, bank, scorer, k_ac=20, fps_k=8)
+    p = fast_search(q, bank, scorer, SearchConfig(k_ac=20, fps_k=8))
     assert (p.obj_index, p.ref_index) == (1, 42)

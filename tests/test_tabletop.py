@@ -4,9 +4,9 @@ that match renders, and the named query styles."""
 import numpy as np
 import pytest
 
-from helpers.core.configs import QueryStyle, RenderConfig, query_style
+from helpers.core.configs import QueryStyle, RenderConfig
 from helpers.core.rotations import geodesic_deg
-from helpers.data.render import render_query, render_reference
+from helpers.data.render import query_style, render_query, render_reference
 from helpers.data.tabletop import elevation_of, look_at_w2c, sample_viewpoint, stable_poses
 
 RC = RenderConfig(size=48, render_size=72)

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers.core.configs import TlessConfig
 from helpers.core.fileio import DamagedEntry
 from helpers.data.gl import render_raw
-from helpers.data.tless import TlessConfig, load_tless
+from helpers.data.tless import load_tless
 from helpers.evaluation.baselines import HogModel
 from helpers.evaluation.tless_scoring import rotation_errors, vsd_errors
 from helpers.study.tless_protocol import evaluate_tless

@@ -15,7 +15,8 @@ from helpers.core.views import ObjectViews
 from helpers.net.model import OrientationNet, images_to_tensor
 from helpers.training.augment import augment_batch, augment_image
 from helpers.training.losses import pair_weights, weighted_info_nce
-from helpers.training.train import load_model, plot_history, selection_metric, train, train_step, validate
+from helpers.training.train import load_model, train, train_step
+from helpers.training.validation import plot_history, selection_metric, validate
 
 SIZE = 64
 

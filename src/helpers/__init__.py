@@ -1,9 +1,12 @@
 """Helpers for a reproducible study of retrieval-based 3D orientation estimation.
 
-Data flows one way through the modules::
+The package is cut into layers (sub-packages); a layer imports only the layers below it
+(``tests/test_architecture.py`` runs the import-linter contracts of ``pyproject.toml``)::
 
-    manifest -> meshes -> render -> datasets -> model -> train
-             -> features -> retrieval -> metrics -> report
+    study                                   what notebooks call (top)
+    training | search | evaluation          independent of each other
+    net | data                              independent of each other
+    core                                    configs, rotations, files, locks (bottom)
 
 Conventions (stated once, used everywhere):
 

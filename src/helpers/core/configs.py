@@ -8,17 +8,53 @@ step below takes them, never the parameter dict. All are plain dataclasses that 
 * :class:`DataConfig`: sizes of the rendered benchmark.
 * :class:`ModelConfig` (+ level geometry): the network's architecture switches.
 * :class:`AugmentConfig`, :class:`TrainConfig`: query augmentation and training.
+* :class:`SearchConfig`: retrieval; :class:`HogConfig`: the HOG baseline.
+* :class:`TlessConfig`: sizes of the T-LESS-like set.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
 from .device import resolve_device
 from .precision import PRECISIONS, resolve_precision
+
+
+def _ints(obj: object, names: tuple[str, ...], lo: int = 1, none_ok: bool = False) -> None:
+    """Each named field an int >= ``lo`` (or None when ``none_ok``), stored as a Python int."""
+    for name in names:
+        v = getattr(obj, name)
+        if none_ok and v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"{type(obj).__name__}.{name}: expected an int >= {lo}{' or None' if none_ok else ''}, "
+                             f"got {v!r}")
+        object.__setattr__(obj, name, int(v))  # (frozen dataclasses too)
+
+
+def _bools(obj: object, names: tuple[str, ...]) -> None:
+    for name in names:
+        v = getattr(obj, name)
+        if not isinstance(v, (bool, np.bool_)):
+            raise ValueError(f"{type(obj).__name__}.{name}: expected a bool, got {v!r}")
+        object.__setattr__(obj, name, bool(v))
+
+
+def _choice(obj: object, name: str, options: tuple | dict) -> None:
+    if getattr(obj, name) not in options:
+        raise ValueError(f"{type(obj).__name__}.{name}: expected one of {tuple(options)}, got {getattr(obj, name)!r}")
+
+
+def _from_dict(cls: type, d: dict) -> Any:
+    """``cls(**d)``; unknown keys are an error naming the class."""
+    unknown = set(d) - {f.name for f in fields(cls)}
+    if unknown:
+        raise ValueError(f"{cls.__name__}.from_dict: unknown keys {sorted(unknown)}")
+    return cls(**d)
 
 # ---------------------------------------------------------------- rendering
 
@@ -126,25 +162,8 @@ class QueryStyle:
 
 SCENES = ("tabletop", "photo")
 
-#: Named query styles. ``linemod`` is the default benchmark; ``hard`` is the
-#: earlier full-SO(3) style over photographs.
-STYLES = {
-    # Calibrated once with HOG nearest neighbour (Dalal-Triggs settings), never with a trained
-    # model: 13 benchmark objects x 512 references at 64 px, 100 test queries per object,
-    # greedy search: mean unseen Rota. Acc. 31.0 % (paper's HOG on LineMOD: 33.13 %). Sensor
-    # blur/noise are small because a real crop is downsampled from a VGA frame.
-    "linemod": dict(scene="tabletop", light_intensity=(2.0, 5.0), ambient=(0.2, 0.45), color_scale=0.15,
-                    crop_shift=0.03, crop_scale=0.03, blur_sigma=0.5, noise_sigma=2.0, table_contrast=0.3,
-                    n_clutter=(1, 4)),
-    "hard": dict(scene="photo"),
-}
-
-
-def query_style(name: str = "linemod", **overrides) -> QueryStyle:
-    """The named query style (``"linemod"`` or ``"hard"``) with field overrides."""
-    if name not in STYLES:
-        raise ValueError(f"query style must be one of {sorted(STYLES)}, got {name!r}")
-    return QueryStyle(**{**STYLES[name], **overrides})
+#: Names of the query styles (their settings: :data:`helpers.data.render.STYLES`).
+QUERY_STYLES = ("linemod", "hard")
 
 
 # ---------------------------------------------------------------- benchmark data
@@ -187,11 +206,34 @@ class DataConfig:
     cache_dir: str = ""
 
     def __post_init__(self) -> None:
-        query_style(self.query_style)  # names the bad value: "query style must be one of ..."
+        _choice(self, "query_style", QUERY_STYLES)
         if not 1.0 <= float(self.train_context) <= 2.0:
             raise ValueError(f"train_context: expected a crop-side multiple in [1, 2], got {self.train_context!r}")
 
     def render_config(self) -> RenderConfig:
+        return RenderConfig(size=self.image_size, render_size=self.render_size)
+
+
+@dataclass(frozen=True)
+class TlessConfig:
+    """Sizes of the T-LESS-like set.
+
+    Attributes:
+        image_size, render_size: crop and internal render sides, pixels (as the LineMOD-like benchmark's).
+        n_references: references per part (Haar-uniform rotations shared by all parts).
+        n_queries: test queries per part.
+        min_visible: least visible share of a query part's silhouette.
+        seed: rotations, scenes and sensor noise.
+    """
+
+    image_size: int = 64
+    render_size: int = 96
+    n_references: int = 512
+    n_queries: int = 50
+    min_visible: float = 0.5
+    seed: int = 0
+
+    def render(self) -> RenderConfig:
         return RenderConfig(size=self.image_size, render_size=self.render_size)
 
 
@@ -237,8 +279,7 @@ class ModelConfig:
             raise ValueError(f"ModelConfig.image_size: expected an int multiple of 16 and >= 64, "
                              f"got {self.image_size!r}")
         self.image_size = int(self.image_size)
-        if self.fusion not in FUSIONS:
-            raise ValueError(f"ModelConfig.fusion: expected one of {FUSIONS}, got {self.fusion!r}")
+        _choice(self, "fusion", FUSIONS)
         if isinstance(self.scales, str):
             if self.scales != "global":
                 raise ValueError(f"ModelConfig.scales: expected a subset of {LEVELS} or 'global', "
@@ -254,18 +295,12 @@ class ModelConfig:
                                  f"repeats, or 'global', got {self.scales!r}")
             # Canonical order so that feature layout never depends on how the user listed them.
             self.scales = tuple(s for s in LEVELS if s in given)
-        if not isinstance(self.local_norm, (bool, np.bool_)):
-            raise ValueError(f"ModelConfig.local_norm: expected a bool, got {self.local_norm!r}")
-        self.local_norm = bool(self.local_norm)
-        if isinstance(self.norm_window, bool) or not isinstance(self.norm_window, (int, np.integer)) \
-                or not 2 <= self.norm_window <= self.image_size // 2:
+        _bools(self, ("local_norm",))
+        _ints(self, ("norm_window",), lo=2)
+        if self.norm_window > self.image_size // 2:
             raise ValueError(f"ModelConfig.norm_window: expected an int in [2, image_size/2="
                              f"{self.image_size // 2}], got {self.norm_window!r}")
-        self.norm_window = int(self.norm_window)
-        if isinstance(self.channels, bool) or not isinstance(self.channels, (int, np.integer)) \
-                or self.channels < 1:
-            raise ValueError(f"ModelConfig.channels: expected a positive int, got {self.channels!r}")
-        self.channels = int(self.channels)
+        _ints(self, ("channels",))
         if not 0.0 <= float(self.dropout) < 1.0:
             raise ValueError(f"ModelConfig.dropout: expected a float in [0, 1), got {self.dropout!r}")
         self.dropout = float(self.dropout)
@@ -289,14 +324,10 @@ class ModelConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "ModelConfig":
         """Inverse of :meth:`to_dict`; unknown keys are an error."""
-        known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise ValueError(f"ModelConfig.from_dict: unknown keys {sorted(unknown)}")
         d = dict(d)
         if "scales" in d and not isinstance(d["scales"], str):
             d["scales"] = tuple(d["scales"])
-        return cls(**d)
+        return _from_dict(cls, d)
 
 
 def parse_scales(scales: str) -> tuple[int, ...] | str:
@@ -363,9 +394,7 @@ class AugmentConfig:
     occlusion_max: float = 0.3
 
     def __post_init__(self) -> None:
-        for name in ("enabled", "hsv", "noise", "blur", "inplane", "occlusion"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ValueError(f"AugmentConfig.{name}: expected a bool, got {getattr(self, name)!r}")
+        _bools(self, ("enabled", "hsv", "noise", "blur", "inplane", "occlusion"))
         for name in ("blur_p", "inplane_p", "occlusion_p", "sat", "val"):
             if not 0.0 <= float(getattr(self, name)) <= 1.0:
                 raise ValueError(f"AugmentConfig.{name}: expected a value in [0, 1], got {getattr(self, name)!r}")
@@ -383,10 +412,7 @@ class AugmentConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "AugmentConfig":
-        unknown = set(d) - {f.name for f in fields(cls)}
-        if unknown:
-            raise ValueError(f"AugmentConfig.from_dict: unknown keys {sorted(unknown)}")
-        return cls(**d)
+        return _from_dict(cls, d)
 
 
 SELECT_ON = ("mean_acc", "rot_acc")
@@ -463,19 +489,10 @@ class TrainConfig:
     precision: str = "auto"
 
     def __post_init__(self) -> None:
-        def pos_int(name: str, allow_none: bool = False) -> None:
-            v = getattr(self, name)
-            if allow_none and v is None:
-                return
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"TrainConfig.{name}: expected a positive int{' or None' if allow_none else ''}, "
-                                 f"got {v!r}")
-            setattr(self, name, int(v))
-
-        for name in ("epochs", "batch_size", "val_every", "val_batch_size"):
-            pos_int(name)
-        pos_int("steps_per_epoch", allow_none=True)
-        pos_int("num_threads", allow_none=True)
+        _ints(self, ("epochs", "batch_size", "val_every", "val_batch_size"))
+        _ints(self, ("steps_per_epoch", "num_threads"), none_ok=True)
+        _ints(self, ("warmup_steps", "clean_steps", "seed"), lo=0)
+        _bools(self, ("weighted_loss", "occlusion", "progress"))
         if not float(self.lr) > 0:
             raise ValueError(f"TrainConfig.lr: expected > 0, got {self.lr!r}")
         try:
@@ -490,23 +507,9 @@ class TrainConfig:
             raise ValueError(f"TrainConfig.lr_gamma: expected in (0, 1], got {self.lr_gamma!r}")
         if not float(self.tau) > 0:
             raise ValueError(f"TrainConfig.tau: expected > 0, got {self.tau!r}")
-        for name in ("weighted_loss", "occlusion", "progress"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ValueError(f"TrainConfig.{name}: expected a bool, got {getattr(self, name)!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ValueError(f"TrainConfig.seed: expected a non-negative int, got {self.seed!r}")
-        if self.random_ref not in RANDOM_REF:
-            raise ValueError(f"TrainConfig.random_ref: expected one of {RANDOM_REF}, got {self.random_ref!r}")
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"TrainConfig.lr_schedule: expected one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
-        for name in ("warmup_steps", "clean_steps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-                raise ValueError(f"TrainConfig.{name}: expected an int >= 0, got {v!r}")
-        if self.precision not in PRECISIONS:
-            raise ValueError(f"TrainConfig.precision: expected one of {PRECISIONS}, got {self.precision!r}")
-        if self.select_on not in SELECT_ON:
-            raise ValueError(f"TrainConfig.select_on: expected one of {SELECT_ON}, got {self.select_on!r}")
+        for name, options in (("random_ref", RANDOM_REF), ("lr_schedule", LR_SCHEDULES), ("precision", PRECISIONS),
+                              ("select_on", SELECT_ON)):
+            _choice(self, name, options)
         if not isinstance(self.device, str):
             raise ValueError(f"TrainConfig.device: expected a string, got {self.device!r}")
         if isinstance(self.augment, dict):
@@ -531,7 +534,79 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "TrainConfig":
-        unknown = set(d) - {f.name for f in fields(cls)}
-        if unknown:
-            raise ValueError(f"TrainConfig.from_dict: unknown keys {sorted(unknown)}")
-        return cls(**d)
+        return _from_dict(cls, d)
+
+
+# ---------------------------------------------------------------- retrieval
+
+SEARCH_METHODS = ("greedy", "fast", "c2f")
+SCHEDULES = ("converge", "authors")
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """How a query is retrieved in a reference bank (:mod:`helpers.search.retrieval`).
+
+    Attributes:
+        method: ``"greedy"`` (every reference of every object), ``"fast"`` (the paper's
+            Algorithm 1: FPS anchors pick the object, then refinement in shrinking
+            neighbourhoods) or ``"c2f"`` (fast retrieval with our coarse-to-fine category
+            stage, not the authors').
+        k_ac: anchors per object (fast, c2f); at most the bank's references are used.
+        fps_k: references scored per refinement step (farthest-point samples of the
+            neighbourhood of the current best).
+        schedule: neighbourhood sizes: ``"converge"`` (the paper's text: halve when the best
+            stops moving) or ``"authors"`` (their code: 4096/2048/1024/512 scaled to R).
+        top_anchors: the object is the one with the best mean of its ``top_anchors`` best
+            anchor scores.
+        max_moves_per_level: ``"converge"``: moves at one neighbourhood size before halving.
+        coarse_k: c2f: anchors per object scored in the coarse round (>= k_ac: no coarse round).
+        refine_objects: c2f: objects that score all ``k_ac`` anchors.
+        halving: c2f: successive halving of the objects instead of one cut.
+        group: references per scorer call.
+        query_batch: fast: queries whose anchor stage is scored in one batched call (each
+            query's seconds then hold its share of it); greedy and c2f run one query at a time.
+    """
+
+    method: str = "fast"
+    k_ac: int = 1024
+    fps_k: int = 256
+    schedule: str = "converge"
+    top_anchors: int = 3
+    max_moves_per_level: int = 20
+    coarse_k: int = 64
+    refine_objects: int = 3
+    halving: bool = False
+    group: int = 1024
+    query_batch: int = 1
+
+    def __post_init__(self) -> None:
+        _choice(self, "method", SEARCH_METHODS)
+        _choice(self, "schedule", SCHEDULES)
+        _ints(self, ("k_ac", "fps_k", "top_anchors", "max_moves_per_level", "coarse_k", "refine_objects", "group",
+                     "query_batch"))
+        _bools(self, ("halving",))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+#: Exhaustive search (every reference of every object): what the HOG baseline and the ablations use.
+GREEDY = SearchConfig(method="greedy")
+
+
+# ---------------------------------------------------------------- baseline
+
+@dataclass(frozen=True)
+class HogConfig:
+    """HOG parameters (Dalal-Triggs defaults).
+
+    Attributes:
+        orientations: unsigned gradient orientation bins.
+        cell: cell side, pixels.
+        block: block side, cells.
+    """
+
+    orientations: int = 9
+    cell: int = 8
+    block: int = 2

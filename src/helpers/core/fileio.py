@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 
 def sha256_file(path: str | os.PathLike, bufsize: int = 1 << 20) -> str:
@@ -212,3 +213,12 @@ def read_json(path: str | os.PathLike) -> Any:
         raise FileNotFoundError(f"expected JSON file {path} does not exist") from None
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno} column {e.colno})") from None
+
+
+def write_table(df: pd.DataFrame, path_stem: str | os.PathLike, floatfmt: str = ".2f",
+                index: bool = False) -> tuple[Path, Path]:
+    """Write ``<stem>.csv`` and ``<stem>.md`` (Markdown, floats as ``floatfmt``) atomically; returns both paths."""
+    stem = Path(path_stem)
+    csv = atomic_write_text(stem.with_suffix(".csv"), df.to_csv(index=index))
+    md = atomic_write_text(stem.with_suffix(".md"), df.to_markdown(index=index, floatfmt=floatfmt) + "\n")
+    return csv, md

@@ -9,7 +9,7 @@ import os
 from pathlib import Path
 
 #: Repository root (``src/helpers/paths.py`` -> three levels up).
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]  # src/helpers/core/paths.py -> repository
 
 
 def is_checkpoint_choice(choice: str) -> bool:

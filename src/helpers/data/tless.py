@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..core.configs import RenderConfig, query_style
+from ..core.configs import TlessConfig
 from ..core.fileio import atomic_save_npy, atomic_write_json, check_sha256, sha256_file, stable_hash
 from ..core.locks import entry_lock
 from ..core.paths import cache_dir
@@ -35,7 +35,7 @@ from .datasets import background_photos
 from .manifest import Manifest, load_manifest
 from .meshes import ObjectMesh, set_color
 from .parts import load_part
-from .render import apply_sensor, crop_view, render_reference
+from .render import apply_sensor, crop_view, query_style, render_reference
 from .tabletop import ClutterFamily, render_tabletop
 
 #: The T-LESS-like query style. Calibrated with HOG nearest neighbour only (never a trained model); see
@@ -46,29 +46,6 @@ PART_GREY = (0.62, 0.62, 0.6)
 #: Per-query arrays stored for each part (besides its references).
 _QUERY_ARRAYS = ("images", "masks", "rotations", "depth", "frames", "full", "visible")
 SET_VERSION = 2  # 2: full frames and masks kept (BOP export)
-
-
-@dataclass(frozen=True)
-class TlessConfig:
-    """Sizes of the T-LESS-like set.
-
-    Attributes:
-        image_size, render_size: crop and internal render sides, pixels (as the LineMOD-like benchmark's).
-        n_references: references per part (Haar-uniform rotations shared by all parts).
-        n_queries: test queries per part.
-        min_visible: least visible share of a query part's silhouette.
-        seed: rotations, scenes and sensor noise.
-    """
-
-    image_size: int = 64
-    render_size: int = 96
-    n_references: int = 512
-    n_queries: int = 50
-    min_visible: float = 0.5
-    seed: int = 0
-
-    def render(self) -> RenderConfig:
-        return RenderConfig(size=self.image_size, render_size=self.render_size)
 
 
 @dataclass

@@ -9,26 +9,13 @@ unchanged. skimage's ``hog`` is used because OpenCV 5 no longer ships
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 import numpy as np
 import torch
 from skimage.feature import hog
 
-
-@dataclass(frozen=True)
-class HogConfig:
-    """HOG parameters (Dalal-Triggs defaults).
-
-    Attributes:
-        orientations: unsigned gradient orientation bins.
-        cell: cell side, pixels.
-        block: block side, cells.
-    """
-
-    orientations: int = 9
-    cell: int = 8
-    block: int = 2
+from ..core.configs import HogConfig
 
 
 def _grey(images: np.ndarray) -> np.ndarray:

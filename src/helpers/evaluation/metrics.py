@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from ..core.rotations import Symmetries, symmetric_geodesic_deg
+from .stats import share_ci
 
 #: Columns of the per-object table, in order.
 PER_OBJECT_COLUMNS = ("n", "class_acc", "rot_acc", "median_err_deg", "mean_err_deg")
@@ -167,38 +168,6 @@ def group_by_split(per_object: pd.DataFrame, split_of: Mapping[str, str]) -> pd.
     return out
 
 
-def paired_difference(a: pd.DataFrame, b: pd.DataFrame, column: str = "rot_ok", n_boot: int = 2000,
-                      seed: int = 0, level: float = 0.95) -> dict[str, Any]:
-    """Is variant ``b`` better than variant ``a`` on the same queries, beyond noise?
-
-    Both frames come from :func:`per_query_table` over the same queries
-    (matched by ``query_id``). The statistic is the difference of the
-    object-averaged accuracies (b - a, percentage points), as in the tables;
-    its interval comes from a paired bootstrap that resamples queries within
-    each object (so each object keeps its weight).
-
-    Returns:
-        {"diff_pts", "ci": [lo, hi], "level", "n_queries", "verdict"} with
-        verdict "b > a" or "b < a" when the interval excludes 0, else
-        "within noise".
-    """
-    if set(a["query_id"]) != set(b["query_id"]) or len(a) != len(b):
-        raise ValueError("paired_difference: the two tables must hold the same queries (query_id)")
-    m = a[["query_id", "obj", column]].merge(b[["query_id", column]], on="query_id", suffixes=("_a", "_b"))
-    d = (m[f"{column}_b"].astype(float) - m[f"{column}_a"].astype(float)).to_numpy()
-    groups = [np.flatnonzero((m["obj"] == o).to_numpy()) for o in sorted(m["obj"].unique())]
-    point = 100.0 * float(np.mean([d[g].mean() for g in groups]))
-    rng = np.random.default_rng(seed)
-    boots = np.zeros(n_boot)
-    for g in groups:
-        # Mean of a resample of this object's paired differences, for every bootstrap draw at once.
-        boots += d[g][rng.integers(0, len(g), size=(n_boot, len(g)))].mean(axis=1)
-    boots *= 100.0 / len(groups)
-    lo, hi = (float(x) for x in np.quantile(boots, [(1 - level) / 2, (1 + level) / 2]))
-    verdict = "b > a" if lo > 0 else "b < a" if hi < 0 else "within noise"
-    return {"diff_pts": point, "ci": [lo, hi], "level": level, "n_queries": int(len(d)), "verdict": verdict}
-
-
 def chance_levels(n_objects: int, threshold_deg: float = 30.0) -> dict[str, float]:
     """Accuracy (%) of guessing: class uniformly, rotation Haar-uniformly.
 
@@ -209,8 +178,7 @@ def chance_levels(n_objects: int, threshold_deg: float = 30.0) -> dict[str, floa
     return {"class_acc": 100.0 / n_objects, "rot_acc": 100.0 * p_rot / n_objects}
 
 
-def agreement_within(greedy: list, fast: list, threshold_deg: float = 30.0, n_boot: int = 2000,
-                     seed: int = 0) -> dict:
+def agreement_within(greedy: list, fast: list, threshold_deg: float = 30.0, seed: int = 0) -> dict:
     """Share of queries on which ``fast`` predicts greedy's object and a rotation within
     ``threshold_deg`` of greedy's (symmetry-aware), with a bootstrap 95 % interval over queries.
 
@@ -220,7 +188,4 @@ def agreement_within(greedy: list, fast: list, threshold_deg: float = 30.0, n_bo
                    float(symmetric_geodesic_deg(a.R_est[None], b.R_est[None], a.symmetries if a.pred_obj == a.obj
                                                 else None)[0]) < threshold_deg
                    for a, b in zip(greedy, fast)], dtype=float)
-    rng = np.random.default_rng(seed)
-    boots = ok[rng.integers(0, len(ok), size=(n_boot, len(ok)))].mean(axis=1) if len(ok) else np.zeros(1)
-    return {"share": float(ok.mean()) if len(ok) else float("nan"),
-            "ci95": [float(np.quantile(boots, 0.025)), float(np.quantile(boots, 0.975))], "n": int(len(ok))}
+    return share_ci(ok, seed)

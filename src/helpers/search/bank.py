@@ -25,11 +25,11 @@ class ReferenceBank:
         rotations: (R, 3, 3) ``R_m2c`` shared by all objects.
         names: K object names.
         k_ac: number of anchors precomputed by farthest point sampling
-            (clamped to R); other counts are computed on first use.
+            (clamped to R); None: none now. Other counts are computed on first use.
     """
 
     def __init__(self, feats: Sequence[np.ndarray], rotations: np.ndarray, names: Sequence[str],
-                 k_ac: int = 1024):
+                 k_ac: int | None = 1024):
         rotations = np.asarray(rotations, dtype=np.float64)
         if rotations.ndim != 3 or rotations.shape[1:] != (3, 3) or len(rotations) == 0:
             raise ValueError(f"ReferenceBank: rotations must be (R,3,3) with R >= 1, got {rotations.shape}")
@@ -52,7 +52,8 @@ class ReferenceBank:
         self._anchors: dict[int, np.ndarray] = {}
         self._anchor_feats: dict[int, list[torch.Tensor]] = {}
         self._anchor_heads: dict[tuple[int, int], torch.Tensor] = {}
-        self.anchors(k_ac)
+        if k_ac is not None:
+            self.anchors(k_ac)
 
     @property
     def n_objects(self) -> int:

@@ -20,11 +20,13 @@ own agreement.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from ..core.configs import SearchConfig
 from .retrieval import search_all
 
 FAMILIES = ("one cut", "halving")
@@ -53,14 +55,15 @@ def _same(a: Any, b: Any) -> bool:
     return a.obj_index == b.obj_index and a.ref_index == b.ref_index
 
 
-def select_c2f(query_feats: Any, bank: Any, scorer: Any, base: dict[str, Any], candidates: list[dict[str, Any]],
+def select_c2f(query_feats: Any, bank: Any, scorer: Any, base: SearchConfig, candidates: list[dict[str, Any]],
                min_agreement: float = 0.99, progress: bool = True) -> tuple[pd.DataFrame, dict[str, dict]]:
     """Score every candidate against fast retrieval on the same (held-out, seen) queries.
 
     Args:
         query_feats: (N, C, L) features of held-out views of seen objects.
         bank, scorer: as for :func:`helpers.search.retrieval.search_all`.
-        base: fast retrieval's settings shared by every candidate (``k_ac``, ``fps_k``, ``schedule``).
+        base: fast retrieval's settings (``method="fast"``); every candidate shares them and
+            changes only the coarse-to-fine fields.
         candidates: from :func:`c2f_candidates`.
         min_agreement: share in (0, 1] of queries on which a candidate must retrieve what fast does.
 
@@ -76,12 +79,15 @@ def select_c2f(query_feats: Any, bank: Any, scorer: Any, base: dict[str, Any], c
         raise ValueError(f"select_c2f: min_agreement must lie in (0, 1], got {min_agreement!r}")
     if len(query_feats) == 0:
         raise ValueError("select_c2f: no held-out queries to choose the coarse-to-fine settings on")
-    fast = search_all(query_feats, bank, scorer, method="fast", progress=False, **base)
+    if base.method != "fast":
+        raise ValueError(f"select_c2f: base must be fast retrieval's settings (method 'fast'), got {base.method!r}")
+    fast = search_all(query_feats, bank, scorer, base, progress=False)
     fast_cost = float(np.mean([p.n_comparisons for p in fast]))
     rows = []
     for cand in tqdm(candidates, desc="c2f candidates (seen val)", unit="setting", disable=not progress):
-        preds = search_all(query_feats, bank, scorer, method="c2f", progress=False, **base,
-                           coarse_k=cand["coarse_k"], refine_objects=cand["refine_objects"], halving=cand["halving"])
+        c2f = replace(base, method="c2f", coarse_k=cand["coarse_k"], refine_objects=cand["refine_objects"],
+                      halving=cand["halving"])
+        preds = search_all(query_feats, bank, scorer, c2f, progress=False)
         cost = float(np.mean([p.n_comparisons for p in preds]))
         rows.append({**cand, "agreement_with_fast": float(np.mean([_same(p, f) for p, f in zip(preds, fast)])),
                      "mean_comparisons": cost, "comparisons_vs_fast": cost / fast_cost})

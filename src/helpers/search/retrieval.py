@@ -8,6 +8,9 @@ share one set of rotations):
   the category and a start, then refine in shrinking rotation neighbourhoods,
   scoring only fps_k farthest-point samples of each.
 
+:func:`search_all` runs either over many queries, as a
+:class:`helpers.core.configs.SearchConfig` says.
+
 A *scorer* is any callable ``(query (1,C,L) float32 tensor, refs (M,C,L)
 tensor) -> (M,) or (1, M) tensor`` of similarities (higher = more similar).
 References reach it in the bank's dtype (float16 for a feature cache: the
@@ -31,7 +34,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .bank import ReferenceBank  # noqa: F401  (re-exported: the searches' input)
+from ..core.configs import SearchConfig
+from .bank import ReferenceBank
 from .fps import farthest_point_sampling
 
 Scorer = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
@@ -187,90 +191,85 @@ def authors_sizes(n_refs: int) -> list[int]:
     return [int(min(n_refs, max(1, round(s * scale)))) for s in AUTHORS_SIZES]
 
 
-def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int = 1024, fps_k: int = 256,
-                schedule: str = "converge", top_anchors: int = 3, group: int = 1024,
-                max_moves_per_level: int = 20, anchor_scores: np.ndarray | None = None,
-                coarse_k: int | None = None, refine_objects: int = 3, halving: bool = False) -> Prediction:
+def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, cfg: SearchConfig = SearchConfig(),
+                anchor_scores: np.ndarray | None = None) -> Prediction:
     """Algorithm 1 of the method: anchors pick the category, then local refinement.
 
-    1. Score the ``k_ac`` FPS anchors of every object; the category is the
-       object with the best mean of its ``top_anchors`` best anchor scores;
-       start at that object's best anchor.
-    2. Refine within that object, always keeping the best reference seen:
-
-       * ``"authors"`` (the published code): for k in :func:`authors_sizes`
-         (4096, 2048, 1024, 512 at R=10,000), take the k references nearest
-         to the current best, pick ``fps_k`` of them by FPS starting from the
-         current best (all of them if k <= fps_k), score, move to the best.
-       * ``"converge"`` (the paper's text): neighbourhood sizes floor(R/2^j),
-         j = 1, 2, ...; at each size, sample/score/move repeatedly until the
-         best stops changing (at most ``max_moves_per_level`` moves), then halve.
-         Once the neighbourhood has at most ``fps_k`` references, all of it is
-         scored (again until the best stops moving) and the search stops.
+    1. :func:`_pick_category`: score the ``cfg.k_ac`` FPS anchors of every object; the
+       category is the object with the best mean of its ``cfg.top_anchors`` best anchor
+       scores; start at that object's best anchor.
+    2. :func:`_refine_rotation`: within that object, sample, score and move to the best
+       reference of shrinking neighbourhoods (``cfg.schedule``).
 
     Scores are cached per query, so a reference is never scored twice and
-    ``n_comparisons`` counts distinct pairs. ``anchor_scores`` (K, A), if
-    given, are this query's scores of ``bank.anchors(k_ac)`` computed
-    elsewhere (see :func:`anchor_scores_batch`); they count as comparisons.
-
-    Coarse-to-fine category stage (``coarse_k``, not the authors' procedure; None
-    keeps theirs): score only the first ``coarse_k`` anchors of every object (FPS
-    is greedy, so they are the ``coarse_k``-point FPS set, spread over SO(3)),
-    keep the ``refine_objects`` objects with the best top-anchor means, score the
-    rest of the ``k_ac`` anchors of those alone and pick the category among them
-    by the authors' rule. K*k_ac anchor pairs become K*coarse_k +
-    refine_objects*(k_ac - coarse_k); the rotation stage is unchanged.
-    ``halving=True`` cuts the objects in rounds instead (successive halving):
-    the better half stays in play and scores twice as many anchors, until
-    ``refine_objects`` remain and score all of them (at K=13, k_ac=1024,
-    coarse_k=64, refine_objects=1: 13x64 + 7x64 + 4x128 + 2x256 + 1x512 = 2,816
-    pairs instead of 13,312; the last two objects compete on 512 anchors each),
-    so no single coarse round decides the object.
+    ``n_comparisons`` counts distinct pairs. ``anchor_scores`` (K, A), if given, are this
+    query's scores of ``bank.anchors(cfg.k_ac)`` computed elsewhere (see
+    :func:`anchor_scores_batch`); they count as comparisons. ``cfg.method == "c2f"`` replaces
+    step 1's scoring by our coarse-to-fine category stage (:func:`_coarse_to_fine_anchors`).
     """
-    if schedule not in ("converge", "authors"):
-        raise ValueError(f"fast_search: schedule must be 'converge' or 'authors', got {schedule!r}")
-    if fps_k < 1 or top_anchors < 1:
-        raise ValueError(f"fast_search: fps_k and top_anchors must be >= 1, got {fps_k}, {top_anchors}")
+    if cfg.method == "greedy":
+        raise ValueError("fast_search: cfg.method is 'greedy'; use greedy_search or search_all")
     q = _as_query(query_feat)
     _check_query(q, bank)
-    score = _ScoreCache(q, bank, scorer, group)
+    score = _ScoreCache(q, bank, scorer, cfg.group)
+    obj, start, start_score = _pick_category(q, bank, scorer, cfg, score, anchor_scores)
+    best, best_score = _refine_rotation(bank, score, cfg, obj, start, start_score)
+    return Prediction(obj, best, best_score, score.n_comparisons, bank.rotations[best].copy(), bank.names[obj])
 
-    anchors = bank.anchors(k_ac)
-    top = min(top_anchors, len(anchors))
-    if coarse_k is not None and anchor_scores is None and coarse_k < len(anchors):
-        if coarse_k < 1 or refine_objects < 1:
-            raise ValueError(f"fast_search: coarse_k and refine_objects must be >= 1, got {coarse_k}, {refine_objects}")
-        anchor_scores = _coarse_to_fine_anchors(q, bank, scorer, k_ac, coarse_k, refine_objects, top, halving)
-        for o in range(bank.n_objects):
-            seen = np.isfinite(anchor_scores[o])
-            score.put(o, anchors[seen], anchor_scores[o, seen])
-    elif anchor_scores is None:
-        feats = bank.anchor_feats(k_ac)
-        anchor_scores = np.stack([_run_scorer(scorer, q, feats[o]) for o in range(bank.n_objects)])  # (K, A)
-    else:
+
+def _pick_category(q: torch.Tensor, bank: ReferenceBank, scorer: Scorer, cfg: SearchConfig, score: _ScoreCache,
+                   anchor_scores: np.ndarray | None) -> tuple[int, int, float]:
+    """Step 1: (object index, its best anchor's reference index, that anchor's score).
+
+    Every anchor score is recorded in ``score``. With the coarse-to-fine stage, objects whose
+    anchors were not all scored get -inf and are never chosen."""
+    anchors = bank.anchors(cfg.k_ac)
+    top = min(cfg.top_anchors, len(anchors))
+    if anchor_scores is not None:
         anchor_scores = np.asarray(anchor_scores, dtype=np.float64)
         if anchor_scores.shape != (bank.n_objects, len(anchors)):
             raise ValueError(f"fast_search: anchor_scores must be (K, A)=({bank.n_objects}, {len(anchors)}), "
                              f"got {anchor_scores.shape}")
-    if not np.isfinite(anchor_scores).all() and coarse_k is None:
+    elif cfg.method == "c2f" and cfg.coarse_k < len(anchors):
+        anchor_scores = _coarse_to_fine_anchors(q, bank, scorer, cfg, top)
+    else:
+        feats = bank.anchor_feats(cfg.k_ac)
+        anchor_scores = np.stack([_run_scorer(scorer, q, feats[o]) for o in range(bank.n_objects)])  # (K, A)
+    # Only the coarse-to-fine stage leaves -inf (anchors it did not score); anything else non-finite is an error.
+    if np.isnan(anchor_scores).any() or np.isposinf(anchor_scores).any() or \
+            (cfg.method != "c2f" and np.isneginf(anchor_scores).any()):
         raise ValueError("fast_search: anchor_scores hold non-finite values")
-    if np.isfinite(anchor_scores).all():  # (the coarse-to-fine stage recorded its own)
-        for o in range(bank.n_objects):
-            score.put(o, anchors, anchor_scores[o])
-    # Objects whose anchors were not all scored (coarse-to-fine) get -inf and are never chosen.
-    cat_score = np.where(np.isfinite(anchor_scores).all(axis=1),
-                         -np.sort(-np.nan_to_num(anchor_scores, neginf=-1e300), axis=1)[:, :top].mean(axis=1),
-                         -np.inf)
-    obj = int(np.argmax(cat_score))
+    for o in range(bank.n_objects):
+        seen = np.isfinite(anchor_scores[o])
+        score.put(o, anchors[seen], anchor_scores[o, seen])
+    complete = np.isfinite(anchor_scores).all(axis=1)
+    best_top = -np.sort(-np.nan_to_num(anchor_scores, neginf=-1e300), axis=1)[:, :top].mean(axis=1)
+    obj = int(np.argmax(np.where(complete, best_top, -np.inf)))
     j0 = int(np.argmax(anchor_scores[obj]))
-    best, best_score = int(anchors[j0]), float(anchor_scores[obj, j0])
+    return obj, int(anchors[j0]), float(anchor_scores[obj, j0])
 
+
+def _refine_rotation(bank: ReferenceBank, score: _ScoreCache, cfg: SearchConfig, obj: int, best: int,
+                     best_score: float) -> tuple[int, float]:
+    """Step 2: (reference index, score) after refinement within object ``obj``, always keeping
+    the best reference seen.
+
+    * ``"authors"`` (the published code): for k in :func:`authors_sizes` (4096, 2048, 1024,
+      512 at R=10,000), take the k references nearest to the current best, pick ``fps_k`` of
+      them by FPS starting from the current best (all of them if k <= fps_k), score, move to
+      the best.
+    * ``"converge"`` (the paper's text): neighbourhood sizes floor(R/2^j), j = 1, 2, ...; at
+      each size, sample/score/move repeatedly until the best stops changing (at most
+      ``max_moves_per_level`` moves), then halve. Once the neighbourhood has at most
+      ``fps_k`` references, all of it is scored (again until the best stops moving) and the
+      search stops.
+    """
     def step(k: int) -> bool:
         """Sample the k-neighbourhood of the best, score, move; True if the best moved."""
         nonlocal best, best_score
         pool = bank.nearest_refs(best, k)
-        cand = pool if len(pool) <= fps_k else farthest_point_sampling(bank.rotations, fps_k, start=0,
-                                                                       candidates=pool)
+        cand = pool if len(pool) <= cfg.fps_k else farthest_point_sampling(bank.rotations, cfg.fps_k, start=0,
+                                                                           candidates=pool)
         s = score(obj, cand)
         j = int(np.argmax(s))
         if s[j] > best_score:
@@ -278,34 +277,38 @@ def fast_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, k_ac: int 
             return True
         return False
 
-    R = bank.n_refs
-    if schedule == "authors":
-        for k in authors_sizes(R):
+    if cfg.schedule == "authors":
+        for k in authors_sizes(bank.n_refs):
             step(k)
-    else:
-        j = 1
-        while True:
-            k = max(1, R >> j)
-            for _ in range(max_moves_per_level):
-                if not step(k):
-                    break
-            if k <= fps_k:
+        return best, best_score
+    j = 1
+    while True:
+        k = max(1, bank.n_refs >> j)
+        for _ in range(cfg.max_moves_per_level):
+            if not step(k):
                 break
-            j += 1
-    return Prediction(obj, best, best_score, score.n_comparisons, bank.rotations[best].copy(), bank.names[obj])
+        if k <= cfg.fps_k:
+            return best, best_score
+        j += 1
 
 
-def _coarse_to_fine_anchors(q: torch.Tensor, bank: ReferenceBank, scorer: Scorer, k_ac: int, coarse_k: int,
-                            refine_objects: int, top: int, halving: bool) -> np.ndarray:
-    """(K, A) anchor scores, -inf where not scored.
+def _coarse_to_fine_anchors(q: torch.Tensor, bank: ReferenceBank, scorer: Scorer, cfg: SearchConfig,
+                            top: int) -> np.ndarray:
+    """(K, A) anchor scores, -inf where not scored: our coarse-to-fine category stage, not the
+    authors' procedure.
 
-    Round 1 scores the first ``coarse_k`` anchors of every object (one scorer call
-    over :meth:`ReferenceBank.anchor_head_feats`). Each round then ranks the objects
-    still in play by the mean of their ``top`` best scored anchors and keeps the
-    ``refine_objects`` best (``halving=False``) or the better half, at least
-    ``refine_objects`` (``halving=True``, successive halving: the survivors' scored
-    anchors double each round); once ``refine_objects`` remain they score all A.
+    Round 1 scores the first ``coarse_k`` anchors of every object (FPS is greedy, so they are
+    the ``coarse_k``-point FPS set, spread over SO(3); one scorer call over
+    :meth:`ReferenceBank.anchor_head_feats`). Each round then ranks the objects still in play
+    by the mean of their ``top`` best scored anchors and keeps the ``refine_objects`` best
+    (``halving=False``: K*k_ac anchor pairs become K*coarse_k + refine_objects*(k_ac -
+    coarse_k)) or the better half, at least ``refine_objects`` (``halving=True``, successive
+    halving: the survivors' scored anchors double each round; at K=13, k_ac=1024,
+    coarse_k=64, refine_objects=1: 13x64 + 7x64 + 4x128 + 2x256 + 1x512 = 2,816 pairs
+    instead of 13,312); once ``refine_objects`` remain they score all A, and the category
+    is picked among them by the authors' rule.
     """
+    k_ac, coarse_k, refine_objects, halving = cfg.k_ac, cfg.coarse_k, cfg.refine_objects, cfg.halving
     feats = bank.anchor_feats(k_ac)
     n_anchor = len(feats[0])
     out = np.full((bank.n_objects, n_anchor), -np.inf)
@@ -350,51 +353,33 @@ def anchor_scores_batch(query_feats: torch.Tensor, bank: ReferenceBank, scorer: 
     return out
 
 
-def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, method: str = "greedy",
-               progress: bool = True, query_batch: int = 1, **kwargs: Any) -> list[Prediction]:
-    """Run :func:`greedy_search` or :func:`fast_search` for each of N queries (N, C, L).
+def search_all(query_feats: Any, bank: ReferenceBank, scorer: Scorer, cfg: SearchConfig,
+               progress: bool = True) -> list[Prediction]:
+    """Retrieve each of N queries (N, C, L) with ``cfg``: :func:`greedy_search` or :func:`fast_search`.
 
-    ``method``: "greedy", "fast" (the authors' Algorithm 1) or "c2f" (fast search with
-    the coarse-to-fine category stage: ``coarse_k`` anchors per object first, default
-    64, then all ``k_ac`` anchors of ``refine_objects`` objects, or ``halving=True``; always
-    one query at a time).
-
-    For "fast", the anchor stage of ``query_batch`` queries at a time is one
-    batched scoring pass (:func:`anchor_scores_batch`); each prediction's
-    ``seconds`` is its refinement plus an equal share of its batch's anchor
-    stage, so their mean is the throughput cost per query. ``query_batch=1``
-    (default) gives single-query latency; on 2 CPU cores batching did not pay
-    (benchmarks/README.md), on a GPU it is the way to fill the device.
-    ``kwargs`` go to the search function (e.g.
-    ``group``, ``k_ac``, ``schedule``).
+    For ``"fast"``, the anchor stage of ``cfg.query_batch`` queries at a time is one batched
+    scoring pass (:func:`anchor_scores_batch`); each prediction's ``seconds`` is its
+    refinement plus an equal share of its batch's anchor stage, so their mean is the
+    throughput cost per query. ``query_batch=1`` gives single-query latency; on 2 CPU cores
+    batching did not pay (benchmarks/README.md), on a GPU it is the way to fill the device.
+    ``"c2f"`` runs one query at a time (its category stage depends on each query's coarse scores).
     """
-    fns = {"greedy": greedy_search, "fast": fast_search, "c2f": fast_search}
-    if method == "c2f":
-        kwargs.setdefault("coarse_k", 64)
-        query_batch = 1  # its category stage depends on each query's coarse scores
-    if method not in fns:
-        raise ValueError(f"search_all: method must be one of {sorted(fns)}, got {method!r}")
     if getattr(query_feats, "ndim", None) != 3:
         raise ValueError(f"search_all: query_feats must be (N,C,L), got shape {getattr(query_feats, 'shape', None)}")
-    if isinstance(query_batch, bool) or not isinstance(query_batch, int) or query_batch < 1:
-        raise ValueError(f"search_all: query_batch must be a positive int, got {query_batch!r}")
-    fn = fns[method]
-    n = len(query_feats)
+    batch = cfg.query_batch if cfg.method == "fast" else 1
     preds: list[Prediction] = []
-    bar = tqdm(total=n, desc=f"{method} search", unit="query", disable=not progress)
-    if method == "c2f":
-        method = "fast"
-    for s in range(0, n, query_batch if method == "fast" else 1):
-        batch = query_feats[s:s + (query_batch if method == "fast" else 1)]
-        share, pre = 0.0, [None] * len(batch)
-        if method == "fast" and len(batch) > 1:
+    bar = tqdm(total=len(query_feats), desc=f"{cfg.method} search", unit="query", disable=not progress)
+    for s in range(0, len(query_feats), batch):
+        part = query_feats[s:s + batch]
+        share, pre = 0.0, [None] * len(part)
+        if len(part) > 1:
             t0 = time.perf_counter()
-            pre = list(anchor_scores_batch(_as_queries(batch), bank, scorer, kwargs.get("k_ac", 1024)))
-            share = (time.perf_counter() - t0) / len(batch)
-        for i in range(len(batch)):
+            pre = list(anchor_scores_batch(_as_queries(part), bank, scorer, cfg.k_ac))
+            share = (time.perf_counter() - t0) / len(part)
+        for i in range(len(part)):
             t0 = time.perf_counter()
-            p = fn(batch[i], bank, scorer, **kwargs) if pre[i] is None else \
-                fn(batch[i], bank, scorer, anchor_scores=pre[i], **kwargs)
+            p = greedy_search(part[i], bank, scorer, cfg.group) if cfg.method == "greedy" else \
+                fast_search(part[i], bank, scorer, cfg, anchor_scores=pre[i])
             p.seconds = share + time.perf_counter() - t0
             preds.append(p)
             bar.update(1)

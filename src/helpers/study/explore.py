@@ -104,7 +104,7 @@ def build_explorer(model: Any, label: str, data: StudyData, bank_objects: list[s
         raise ValueError(f"build_explorer: model {label!r} takes {size} px crops, the data are "
                          f"{data.cfg.image_size} px (set image_size to {size})")
     dev = resolve_device(device)
-    bank = reference_bank(model, data, bank_objects, device=device, k_ac=1, progress=False)
+    bank = reference_bank(model, data, bank_objects, device=device, progress=False)
     feats = {n: encode_queries(model, data.test_q[n], device) for n in query_objects}
     return Explorer(model, label, data, bank, feats, dev)
 

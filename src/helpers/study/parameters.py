@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import ast
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from ..core.configs import STYLES, ModelConfig, TrainConfig
+from ..core.configs import QUERY_STYLES, AugmentConfig, DataConfig, ModelConfig, SearchConfig, TrainConfig, parse_scales
 from ..core.paths import REPO_ROOT, is_checkpoint_choice, repo_path
 from ..data.manifest import load_manifest
 from ..evaluation.paper import COMPONENT_LABELS
@@ -168,8 +169,8 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
     for name, options in _CHOICES.items():
         if name in P and P[name] not in options:
             raise _err(notebook, name, f"one of {list(options)}", P[name])
-    if "query_style" in P and P["query_style"] not in STYLES:
-        raise _err(notebook, "query_style", f"one of {sorted(STYLES)}", P["query_style"])
+    if "query_style" in P and P["query_style"] not in QUERY_STYLES:
+        raise _err(notebook, "query_style", f"one of {list(QUERY_STYLES)}", P["query_style"])
     if "lr" in P and not P["lr"] > 0:
         raise _err(notebook, "lr", "a learning rate > 0", P["lr"])
     if "train_context" in P and not 1.0 <= P["train_context"] <= 2.0:
@@ -284,17 +285,54 @@ def _check_seeded(notebook: str, seeded: list, variants: list | None) -> None:
 
 
 def _check_configs(notebook: str, P: dict[str, Any]) -> None:
-    """Let the model and training configs check what they know (same messages as at training)."""
+    """Let the typed configurations check what they know (same messages as at training)."""
     try:
-        if {"image_size", "fusion", "scales", "local_norm", "norm_window"} <= set(P):
-            scales = P["scales"] if P["scales"] == "global" else tuple(int(s) for s in P["scales"].split(","))
-            mc = ModelConfig(image_size=P["image_size"], fusion=P["fusion"], scales=scales,
-                             local_norm=P["local_norm"], norm_window=P["norm_window"])
-            if {"epochs", "batch_size", "lr", "lr_milestones"} <= set(P):
-                TrainConfig(epochs=P["epochs"], steps_per_epoch=P.get("steps_per_epoch") or None,
-                            batch_size=P["batch_size"], lr=P["lr"], lr_milestones=tuple(P["lr_milestones"]),
-                            lr_schedule=P.get("lr_schedule", "step"), warmup_steps=P.get("warmup_steps", 0),
-                            clean_steps=P.get("clean_steps", 0), random_ref=P.get("random_ref", "own"),
-                            seed=P.get("seed", 0), val_every=P.get("val_every", 1), model=mc)
+        configs_from(P)
     except ValueError as e:
         raise ParameterError(f"notebook {notebook}: {e}") from None
+
+
+# ------------------------------------------------------------------ typed configurations
+
+_DATA = ("image_size", "render_size", "n_references", "n_train_queries", "n_val_queries", "n_test_queries",
+         "query_style", "train_context", "seed", "workers", "cache_dir")
+_MODEL = ("image_size", "fusion", "scales", "local_norm", "norm_window")
+_TRAIN = ("epochs", "steps_per_epoch", "batch_size", "lr", "lr_milestones", "lr_schedule", "warmup_steps",
+          "clean_steps", "random_ref", "weighted_loss", "seed", "device", "train_occlusion", "val_every")
+
+
+@dataclass(frozen=True)
+class StudyConfigs:
+    """The typed configurations of one notebook run; None where the notebook has no such parameters."""
+
+    data: DataConfig | None
+    train: TrainConfig | None
+    search: SearchConfig | None
+
+
+def configs_from(P: dict[str, Any]) -> StudyConfigs:
+    """Build the typed configurations from checked parameters (the only place that reads them).
+
+    ``data`` from the benchmark sizes (:data:`_DATA`), ``train`` (with its ``model``) from the
+    training and architecture parameters, ``search`` from ``eval_method`` (notebook 03) or, in
+    notebook 07, as fast retrieval's settings (``k_ac``, ``fps_k``, ``group``) that its other rows vary.
+    A set of parameters that is only partly present gives None (e.g. notebook 01 has no training).
+    """
+    has = set(P).issuperset
+    data = DataConfig(**{k: P[k] for k in _DATA}) if has(_DATA) else None
+    train = None
+    if has(_MODEL + _TRAIN):
+        model = ModelConfig(image_size=P["image_size"], fusion=P["fusion"], scales=parse_scales(P["scales"]),
+                            local_norm=P["local_norm"], norm_window=P["norm_window"])
+        train = TrainConfig(epochs=P["epochs"], steps_per_epoch=P["steps_per_epoch"] or None,
+                            batch_size=P["batch_size"], lr=P["lr"], lr_milestones=tuple(P["lr_milestones"]),
+                            lr_schedule=P["lr_schedule"], warmup_steps=P["warmup_steps"],
+                            clean_steps=P["clean_steps"], random_ref=P["random_ref"],
+                            weighted_loss=P["weighted_loss"], seed=P["seed"], device=P["device"],
+                            occlusion=P["train_occlusion"], augment=AugmentConfig(), val_every=P["val_every"],
+                            model=model)
+    search = None
+    if has(("k_ac", "fps_k")):
+        method = P.get("eval_method", "fast")
+        search = SearchConfig(method=method, k_ac=P["k_ac"], fps_k=P["fps_k"], group=P.get("group", 1024))
+    return StudyConfigs(data, train, search)

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.configs import DataConfig, query_style
+from ..core.configs import DataConfig, SearchConfig
 from ..core.device import resolve_device
 from ..core.fileio import DamagedEntry, atomic_write_json, check_sha256, read_json, sha256_file, stable_hash, touch
 from ..core.locks import entry_lock, made_by
@@ -24,6 +24,7 @@ from ..core.views import ObjectViews
 from ..data.datasets import ViewSetSpec, render_sets
 from ..data.gl import gl_platform
 from ..data.manifest import Manifest, load_manifest
+from ..data.render import query_style
 from ..evaluation.metrics import Record, per_query_table, summarise_queries
 from ..search.features import FeatureCache, encode_batch, encode_views, model_fingerprint
 from ..search.fps import farthest_point_sampling
@@ -250,13 +251,14 @@ def _train_key(cfg: Any) -> dict:
 
 # ------------------------------------------------------------------ evaluation
 
-def reference_bank(model: Any, data: StudyData, objects: list[str], device: str = "auto", k_ac: int = 1024,
+def reference_bank(model: Any, data: StudyData, objects: list[str], device: str = "auto", k_ac: int | None = None,
                    n_refs: int | None = None, batch: int | None = None, progress: bool = True) -> ReferenceBank:
     """Encode (once, cached as float16 memmaps) the references of ``objects``.
 
     ``n_refs`` keeps only the first n references (still Haar-uniform): taken from the
     full set's features when those are cached already, else only those n are encoded
     (cached under their own key), so a small ablation bank costs n, not all, encodings.
+    ``k_ac``: anchors of fast retrieval to pick now (None: on first use).
     """
     dev = resolve_device(device)
     batch = batch or encode_batch(dev)
@@ -286,24 +288,22 @@ def encode_queries(model: Any, views: ObjectViews, device: str = "auto", batch: 
     return torch.cat(parts) if parts else torch.zeros(0)
 
 
-def evaluate(model: Any, bank: ReferenceBank, queries: dict[str, ObjectViews], method: str = "greedy",
-             device: str = "auto", threshold_deg: float = 30.0, progress: bool = True,
-             **search_kw: Any) -> dict[str, Any]:
-    """Retrieve every query of ``queries`` in ``bank`` and score the predictions.
+def evaluate(model: Any, bank: ReferenceBank, queries: dict[str, ObjectViews], search: SearchConfig,
+             device: str = "auto", threshold_deg: float = 30.0) -> dict[str, Any]:
+    """Retrieve every query of ``queries`` in ``bank`` with ``search`` and score the predictions.
 
-    ``search_kw`` go to :func:`helpers.search.retrieval.search_all` (e.g. ``k_ac``,
-    ``fps_k``, ``query_batch``). Seconds per query exclude query encoding.
+    Seconds per query exclude query encoding.
 
     Returns:
         {"per_object": DataFrame, "means": dict, "per_query": DataFrame,
-         "seconds_per_query": [...], "comparisons": [...]}.
+         "seconds_per_query": [...], "comparisons": [...], "records": [...]}.
     """
     dev = resolve_device(device)
     scorer = model_scorer(model, dev)
     records, secs, comps = [], [], []
     for name, views in queries.items():
         q = encode_queries(model, views, device)
-        preds = search_all(q, bank, scorer, method=method, progress=False, **search_kw) if len(q) else []
+        preds = search_all(q, bank, scorer, search, progress=False) if len(q) else []
         for i, pred in enumerate(preds):
             secs.append(pred.seconds)
             comps.append(pred.n_comparisons)

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..core.configs import GREEDY, SearchConfig
 from ..evaluation import paper
 from ..evaluation.baselines import HogModel
 from ..evaluation.metrics import Record, per_query_table, summarise_queries
@@ -23,31 +24,21 @@ from ..search.retrieval import search_all
 from .pipeline import StudyData, encode_queries, evaluate, first, reference_bank
 
 
-def search_settings(method: str, k_ac: int, fps_k: int) -> dict[str, Any]:
-    """Keyword arguments of :func:`helpers.study.pipeline.evaluate` for "fast" (Algorithm 1) or "greedy"."""
-    if method == "fast":
-        return {"method": "fast", "k_ac": k_ac, "fps_k": fps_k}
-    if method == "greedy":
-        return {"method": "greedy"}
-    raise ValueError(f"eval_method: expected 'fast' or 'greedy', got {method!r}")
-
-
-def evaluate_split(model: Any, data: StudyData, split: int, search: dict[str, Any], seen_queries: int = 0,
-                   occluded_queries: int = 0, device: str = "auto", k_ac: int = 1024) -> dict[str, Any]:
+def evaluate_split(model: Any, data: StudyData, split: int, search: SearchConfig, seen_queries: int = 0,
+                   occluded_queries: int = 0, device: str = "auto") -> dict[str, Any]:
     """Unseen / seen / occluded-unseen results of one split's model.
 
     ``seen_queries`` / ``occluded_queries`` cap the queries per object of those parts (0: all).
     Returns {"model", "bank", "unseen", "seen", "occluded"} (each part an :func:`evaluate` dict).
     """
     m = data.manifest
-    bank = reference_bank(model, data, m.object_names("train"), device=device, k_ac=k_ac)
+    bank = reference_bank(model, data, m.object_names("train"), device=device, k_ac=search.k_ac)
     unseen, seen = m.split_objects(split), m.seen_objects(split)
     return {"model": model, "bank": bank,
-            "unseen": evaluate(model, bank, {n: data.test_q[n] for n in unseen}, device=device, **search),
-            "seen": evaluate(model, bank, {n: first(data.test_q[n], seen_queries) for n in seen},
-                             device=device, **search),
+            "unseen": evaluate(model, bank, {n: data.test_q[n] for n in unseen}, search, device),
+            "seen": evaluate(model, bank, {n: first(data.test_q[n], seen_queries) for n in seen}, search, device),
             "occluded": evaluate(model, bank, {n: first(data.occluded_q[n], occluded_queries) for n in unseen},
-                                 device=device, **search)}
+                                 search, device)}
 
 
 def split_tables(results: dict[int, dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -92,22 +83,20 @@ def accuracy_row(r: dict) -> dict:
             "median_err_deg": r["means"]["median_err_deg"]}
 
 
-def hog_baseline(data: StudyData, splits: tuple[int, ...] = (1, 2, 3), k_ac: int = 1024) -> dict[int, dict]:
+def hog_baseline(data: StudyData, splits: tuple[int, ...] = (1, 2, 3)) -> dict[int, dict]:
     """HOG nearest neighbour (Dalal-Triggs settings) on the unseen queries of each split, exhaustive
     (greedy) search over the same references; it calibrates the benchmark's difficulty."""
     bench = data.manifest.object_names("train")
     hog = HogModel()
-    bank = reference_bank(hog, data, bench, device="cpu", k_ac=k_ac)
-    return {s: evaluate(hog, bank, {n: data.test_q[n] for n in data.manifest.split_objects(s)}, method="greedy",
-                        device="cpu") for s in splits}
+    bank = reference_bank(hog, data, bench, device="cpu")
+    return {s: evaluate(hog, bank, {n: data.test_q[n] for n in data.manifest.split_objects(s)}, GREEDY, "cpu")
+            for s in splits}
 
 
-def baseline_result(model: Any, data: StudyData, split: int, search: dict[str, Any], device: str = "auto",
-                    k_ac: int = 1024) -> dict:
+def baseline_result(model: Any, data: StudyData, split: int, search: SearchConfig, device: str = "auto") -> dict:
     """A learned baseline (e.g. the Global descriptor) on split ``split``'s unseen queries, same search as ours."""
-    bank = reference_bank(model, data, data.manifest.object_names("train"), device=device, k_ac=k_ac)
-    return evaluate(model, bank, {n: data.test_q[n] for n in data.manifest.split_objects(split)}, device=device,
-                    **search)
+    bank = reference_bank(model, data, data.manifest.object_names("train"), device=device, k_ac=search.k_ac)
+    return evaluate(model, bank, {n: data.test_q[n] for n in data.manifest.split_objects(split)}, search, device)
 
 
 def baselines_table(hog: dict[int, dict], learned: dict[str, dict[int, dict]], search: str) -> pd.DataFrame:
@@ -141,12 +130,11 @@ def table2(baselines: pd.DataFrame, ours: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def held_out_result(model: Any, data: StudyData, search: dict[str, Any], device: str = "auto",
-                    k_ac: int = 1024) -> dict:
+def held_out_result(model: Any, data: StudyData, search: SearchConfig, device: str = "auto") -> dict:
     """Held-out objects (never trained on by any split) retrieved among ALL objects."""
     m = data.manifest
-    bank = reference_bank(model, data, m.object_names(), device=device, k_ac=k_ac)
-    return evaluate(model, bank, {n: data.test_q[n] for n in m.held_out_objects()}, device=device, **search)
+    bank = reference_bank(model, data, m.object_names(), device=device, k_ac=search.k_ac)
+    return evaluate(model, bank, {n: data.test_q[n] for n in m.held_out_objects()}, search, device)
 
 
 # ------------------------------------------------------------------ fast vs greedy (paper Table 4)
@@ -167,10 +155,10 @@ def query_features(model: Any, data: StudyData, objects: list[str], device: str 
 
 
 def timed_search(Q: Any, meta: list[tuple[str, int]], data: StudyData, bank: Any, scorer: Any,
-                 **search: Any) -> tuple[list, list]:
+                 search: SearchConfig) -> tuple[list, list]:
     """One untimed warm-up on two queries, then every query: (metric records, predictions with seconds)."""
-    search_all(Q[:2], bank, scorer, progress=False, **search)
-    preds = search_all(Q, bank, scorer, progress=False, **search)
+    search_all(Q[:2], bank, scorer, search, progress=False)
+    preds = search_all(Q, bank, scorer, search, progress=False)
     recs = [Record(n, p.obj_name, data.test_q[n].rotations[j].astype(np.float64), p.R_est,
                    data.test_q[n].symmetries, f"{n}:{j}") for p, (n, j) in zip(preds, meta)]
     return recs, preds

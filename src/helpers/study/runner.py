@@ -35,6 +35,7 @@ from .report import build_report
 PRESET_DIR = REPO_ROOT / "presets"
 PRESETS = ("smoke", "quick", "standard", "long", "paper")
 STATE_FILE = "runner_state.json"
+COMMON = "common.yaml"  # parameters a preset's notebooks share
 HEARTBEAT_S = 30.0  # how often a running notebook's elapsed time is saved (lost on a kill: at most this much)
 
 
@@ -43,22 +44,36 @@ def notebooks() -> list[str]:
     return sorted(p.stem for p in NOTEBOOK_DIR.glob("[0-9][0-9]_*.ipynb"))
 
 
+def _read_preset_file(f: Path) -> dict:
+    if not f.exists():
+        return {}
+    given = yaml.safe_load(f.read_text()) or {}
+    if not isinstance(given, dict):
+        raise ParameterError(f"{f}: expected a mapping of parameter names to values")
+    return given
+
+
 def preset_parameters(preset: str, notebook: str, reports: str = "reports") -> dict:
-    """Validated parameters of ``notebook`` under ``preset`` (out_dir: ``<reports>/<preset>/<notebook>``)."""
+    """Validated parameters of ``notebook`` under ``preset`` (out_dir: ``<reports>/<preset>/<notebook>``).
+
+    ``presets/<preset>/common.yaml`` holds what the preset's notebooks share (each notebook takes the
+    names it declares); ``presets/<preset>/<notebook>.yaml`` then sets what differs for that notebook.
+    A name in common.yaml that no notebook declares is an error naming the file."""
     if preset not in PRESETS:
         raise ParameterError(f"preset must be one of {PRESETS}, got {preset!r}")
     declared = declared_parameters(NOTEBOOK_DIR / f"{notebook}.ipynb")
-    f = PRESET_DIR / preset / f"{notebook}.yaml"
-    given = {}
-    if f.exists():
-        given = yaml.safe_load(f.read_text()) or {}
-        if not isinstance(given, dict):
-            raise ParameterError(f"{f}: expected a mapping of parameter names to values")
+    common_file, f = PRESET_DIR / preset / COMMON, PRESET_DIR / preset / f"{notebook}.yaml"
+    common = _read_preset_file(common_file)
+    known = {k for n in notebooks() for k in declared_parameters(NOTEBOOK_DIR / f"{n}.ipynb")}
+    if set(common) - known:
+        raise ParameterError(f"{common_file}: parameter(s) {sorted(set(common) - known)} are declared by no notebook")
+    given = {**{k: v for k, v in common.items() if k in declared}, **_read_preset_file(f)}
     given.setdefault("out_dir", f"{reports}/{preset}/{notebook}")
     try:
         return check_mapping(notebook, declared, given)
     except ParameterError as e:
-        raise ParameterError(f"{f if f.exists() else 'preset ' + preset}: {e}") from None
+        where = f if f.exists() else common_file if common_file.exists() else f"preset {preset}"
+        raise ParameterError(f"{where}: {e}") from None
 
 
 def run_key(params: dict) -> str:

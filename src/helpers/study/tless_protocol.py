@@ -16,12 +16,13 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
+from ..core.configs import GREEDY
 from ..core.device import resolve_device
 from ..core.paths import cache_dir
 from ..data.tless import TlessSet
 from ..evaluation import paper
-from ..evaluation.claims import accuracy_ci
 from ..evaluation.metrics import summarise_queries
+from ..evaluation.stats import accuracy_ci
 from ..evaluation.tless_scoring import VSD_THRESHOLD, vsd_errors
 from ..search.bank import ReferenceBank
 from ..search.features import FeatureCache, encode_batch, model_fingerprint
@@ -37,7 +38,7 @@ def tless_bank(model: Any, tset: TlessSet, device: str = "auto", cache: str | os
     mkey = model_fingerprint(model)
     feats = [fc.get_or_build(model, mkey, tset.refs[n], f"tless-{tset.key}-{n}", batch=encode_batch(dev),
                              device=dev, progress=progress) for n in tset.names]
-    return ReferenceBank(feats, tset.refs[tset.names[0]].rotations, tset.names, k_ac=1)
+    return ReferenceBank(feats, tset.refs[tset.names[0]].rotations, tset.names, k_ac=None)
 
 
 def evaluate_tless(model: Any, tset: TlessSet, device: str = "auto", cache: str | os.PathLike | None = None,
@@ -50,7 +51,7 @@ def evaluate_tless(model: Any, tset: TlessSet, device: str = "auto", cache: str 
          "records": the retrieval's records (R_est per query)}.
     """
     bank = tless_bank(model, tset, device, cache, progress)
-    res = evaluate(model, bank, tset.queries, method="greedy", device=device, progress=progress)
+    res = evaluate(model, bank, tset.queries, GREEDY, device)
     pq = res["per_query"].copy()
     R_est = {r.query_id: r.R_est for r in res["records"]}
     vsd = np.ones(len(pq))

@@ -7,13 +7,14 @@ The one helper behind every ablation notebook (scales, fusion, components):
     trained = train_variants(runs, data, split, val_refs=val_refs)       # train or load each
     results = evaluate_unseen(trained, data, split, eval_refs=eval_refs) # same unseen queries
     table = variant_table(trained, results)                               # one row per variant
-    claim(per_query(results), "global", "32,16,13", seed_spread(results)) # paired bootstrap + seeds
+    spread = seed_spread(seed_accuracies(results))                        # training noise (stats)
+    claim(per_query(results), "global", "32,16,13", spread)               # paired bootstrap + seeds (stats)
 
 Every variant uses the same data and training budget on the seen objects of one
 split; evaluation retrieves the split's unseen test queries among the 13
 benchmark objects with greedy search, so two variants' per-query results are
 paired and their difference gets a paired bootstrap interval
-(:func:`helpers.evaluation.metrics.paired_difference`).
+(:func:`helpers.evaluation.stats.paired_difference`; claims: :func:`helpers.evaluation.stats.claim`).
 
 Two sources of noise, reported side by side:
 
@@ -24,9 +25,9 @@ Two sources of noise, reported side by side:
   (``seed``, ``seed + 1``, ...); the *seed spread* is the largest
   seed-to-seed range of Rota. Acc. (points, same queries) among them.
 
-A claim's verdict is "significant" only if its interval excludes 0 AND the
-difference is larger than the seed spread ("within seed spread" when only the
-first holds), so a claim must hold beyond both.
+A claim "holds" only if its interval excludes 0 AND the difference is larger
+than the seed spread ("within seed spread" when only the first is true), so a
+claim must hold beyond both (:func:`helpers.evaluation.stats.direction_verdict`).
 """
 
 from __future__ import annotations
@@ -38,18 +39,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..core.configs import parse_scales
-from ..core.fileio import atomic_write_json, atomic_write_text, stable_hash
-from ..evaluation.metrics import paired_difference, summarise_queries
+from ..core.configs import GREEDY, parse_scales
+from ..core.fileio import atomic_write_json, atomic_write_text, stable_hash, write_table
+from ..evaluation.metrics import summarise_queries
 from ..search.features import model_fingerprint
 from .pipeline import StudyData, evaluate, reference_bank
-from .tables import write_table
 from .zoo import model_for
 
-NOISE_NOTE = ("claims compare object-averaged Rota. Acc. of two variants on the same queries; ci is a "
-              "paired bootstrap 95 % interval (queries resampled within objects) of the difference of "
-              "accuracies averaged over matched training seeds; seed_spread is the largest seed-to-seed range of a variant trained "
-              "with several seeds; a verdict is significant only beyond both")
+NOISE_NOTE = ("claims compare object-averaged Rota. Acc. of two variants on the same queries; ci is a paired "
+              "bootstrap 95 % interval (queries resampled within objects) of the difference of accuracies averaged "
+              "over matched training seeds; seed_spread is the largest seed-to-seed range of a variant trained with "
+              "several seeds; a claim holds only beyond both")
 
 
 def variant_config(base: Any, *, fusion: str | None = None, scales: str | None = None,
@@ -134,7 +134,7 @@ def evaluate_unseen(trained: dict[str, Any], data: StudyData, split: int, eval_r
                 out[label].append({"per_query": pq, "per_object": per_object, "means": means, "cached": str(f)})
                 continue
             bank = reference_bank(t.model, data, bench, device=device, n_refs=eval_refs or None)
-            r = evaluate(t.model, bank, queries, "greedy", device)
+            r = evaluate(t.model, bank, queries, GREEDY, device)
             f.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(f, r["per_query"].to_csv(index=False))
             out[label].append(r)
@@ -146,15 +146,10 @@ def per_query(results: dict[str, Any]) -> dict[str, list[pd.DataFrame]]:
     return {label: [r["per_query"] for r in _as_list(rs)] for label, rs in results.items()}
 
 
-def _seed_accs(results: dict[str, Any]) -> dict[str, list[float]]:
+def seed_accuracies(results: dict[str, Any]) -> dict[str, list[float]]:
+    """label -> unseen Rota. Acc. (%) of each of its training seeds (the input of
+    :func:`helpers.evaluation.stats.seed_spread`)."""
     return {label: [float(r["means"]["rot_acc"]) for r in _as_list(rs)] for label, rs in results.items()}
-
-
-def seed_spread(results: dict[str, Any]) -> float | None:
-    """Largest seed-to-seed range of unseen Rota. Acc. (points) among variants with several seeds
-    (None when no variant has more than one)."""
-    ranges = [max(a) - min(a) for a in _seed_accs(results).values() if len(a) > 1]
-    return float(max(ranges)) if ranges else None
 
 
 def variant_table(trained: dict[str, Any], results: dict[str, Any],
@@ -175,77 +170,6 @@ def variant_table(trained: dict[str, Any], results: dict[str, Any],
         row["run"] = ", ".join(Path(t.run).name for t in ts)
         rows.append({**row, **((extra or {}).get(label) or {})})
     return pd.DataFrame(rows)
-
-
-def _seed_mean(tables: list[pd.DataFrame]) -> pd.DataFrame:
-    """Per-query table whose 0/1 columns are averaged over the seeds (same queries in each)."""
-    if len(tables) == 1:
-        return tables[0]
-    base = tables[0][["query_id", "obj"]].copy()
-    for col in ("rot_ok", "class_ok"):
-        stacked = [t.set_index("query_id")[col].astype(float) for t in tables]
-        if any(set(s.index) != set(stacked[0].index) for s in stacked):
-            raise ValueError("seeds of one variant were evaluated on different queries")
-        base[col] = np.mean([s.loc[base["query_id"]].to_numpy() for s in stacked], axis=0)
-    return base
-
-
-def claim(per_query: dict[str, Any], worse: str, better: str, seed_spread: float | None = None) -> dict | None:
-    """Paper claim "``better`` beats ``worse``" on our queries: point estimate, paired 95 % interval
-    over queries, and the training-seed spread.
-
-    ``per_query`` maps labels to one per-query table or a list of them (one per training seed,
-    in seed order). Seeds are matched: seed i of one variant is compared with seed i of the
-    other (same initialisation draw, batches and augmentation), over the seeds both have, and
-    the difference is that of the accuracies averaged over those matched seeds; a variant's
-    extra seeds never enter a comparison with a one-seed variant (that would mix seed luck
-    into the difference). ``holds`` is the point estimate (better > worse); ``verdict`` is
-    "significant" / "significantly reversed" when the interval excludes 0 and |diff| exceeds
-    ``seed_spread`` (the largest seed-to-seed range of one variant's Rota. Acc., points; None:
-    not measured, interval only), "within seed spread" when only the interval excludes 0,
-    else "within noise". ``per_seed_diff_pts`` lists the matched per-seed differences.
-    None when a variant was not run.
-    """
-    if worse not in per_query or better not in per_query:
-        return None
-    a, b = _as_list(per_query[worse]), _as_list(per_query[better])
-    n = min(len(a), len(b))
-    c = paired_difference(_seed_mean(a[:n]), _seed_mean(b[:n]))
-    per_seed = [paired_difference(a[i], b[i])["diff_pts"] for i in range(n)]
-    beyond_seeds = seed_spread is None or abs(c["diff_pts"]) > seed_spread
-    if c["verdict"] == "within noise":
-        verdict = "within noise"
-    elif not beyond_seeds:
-        verdict = "within seed spread"
-    else:
-        verdict = "significant" if c["verdict"] == "b > a" else "significantly reversed"
-    return {"holds": bool(c["diff_pts"] > 0), "compare": f"{better} vs {worse}", **c,
-            "seeds": [len(a), len(b)], "matched_seeds": n, "per_seed_diff_pts": per_seed,
-            "seed_spread_pts": seed_spread, "verdict": verdict}
-
-
-def chain(per_query: dict[str, Any], order: list[str], seed_spread: float | None = None) -> dict | None:
-    """Claim that accuracy rises along ``order``: every consecutive pair as in :func:`claim`."""
-    present = [k for k in order if k in per_query]
-    if len(present) < 2:
-        return None
-    pairs = [claim(per_query, a, b, seed_spread) for a, b in zip(present, present[1:])]
-    verdicts = {p["verdict"] for p in pairs}
-    return {"holds": all(p["holds"] for p in pairs), "pairs": pairs,
-            "verdict": "significant" if verdicts == {"significant"} else
-            "partly reversed beyond noise" if "significantly reversed" in verdicts else "within noise"}
-
-
-def seed_differences(per_query: dict[str, Any]) -> dict[str, dict]:
-    """label -> paired difference (points) between its second and first training seed, for
-    every variant with several seeds: the training noise, with its own query interval."""
-    out = {}
-    for label, tables in per_query.items():
-        tables = _as_list(tables)
-        if len(tables) > 1:
-            c = paired_difference(tables[0], tables[1])
-            out[label] = {"compare": f"{label} seed 2 vs seed 1", **c}
-    return out
 
 
 def claims_table(trend: dict) -> pd.DataFrame:

@@ -22,11 +22,13 @@ import io
 import json
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
+from torch.nn.parallel import DistributedDataParallel
 from tqdm.auto import tqdm
 
 from ..core.configs import ModelConfig, TrainConfig
@@ -34,10 +36,10 @@ from ..core.device import resolve_device
 from ..core.fileio import DamagedEntry, atomic_write_bytes, atomic_write_text
 from ..core.views import ObjectViews
 from ..net.model import OrientationNet, images_to_tensor
-from .batches import _Batcher, _order_stream  # noqa: F401  (re-exported: tests and benchmarks use them)
-from .distributed import barrier, distributed_world, sharded_encoder  # noqa: F401  (re-exported)
+from .batches import _Batcher, _order_stream
+from .distributed import barrier, distributed_world, sharded_encoder
 from .losses import pair_weights, weighted_info_nce
-from .validation import ROT_THRESHOLD_DEG, best_validation, plot_history, selection_metric, validate  # noqa: F401
+from .validation import plot_history, selection_metric, validate
 
 # Fields that may change between an interrupted run and its resumption
 # without changing the trajectory of the weights.
@@ -143,6 +145,27 @@ def _set_rng_state(state: dict) -> None:
 
 # ----------------------------------------------------------------------------- train
 
+@dataclass
+class _Run:
+    """The state of one training run between its steps (what ``last.pt`` saves)."""
+
+    model: OrientationNet
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LambdaLR
+    rng: np.random.Generator
+    batcher: _Batcher
+    steps: int
+    device: torch.device
+    rank: int = 0
+    world: int = 1
+    encode: Any = None
+    history: list[dict] = field(default_factory=list)
+    start_epoch: int = 0
+    global_step: int = 0
+    best_metric: float = -math.inf
+    best_epoch: int | None = None
+
+
 def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: dict[str, ObjectViews],
           val_refs: dict[str, ObjectViews], val_queries: dict[str, ObjectViews], out_dir: Path,
           resume: bool = True, clean_queries: dict[str, ObjectViews] | None = None) -> TrainResult:
@@ -169,6 +192,44 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = cfg.resolved()
+    names = _check_inputs(cfg, train_refs, train_queries, val_refs, val_queries)
+    do_val = any(len(v) for v in val_queries.values())
+    old_threads = torch.get_num_threads()
+    if cfg.num_threads is not None:
+        torch.set_num_threads(cfg.num_threads)
+    try:
+        run = _setup(cfg, names, train_refs, train_queries, clean_queries)
+        if resume and (out_dir / "last.pt").exists():
+            _resume(run, cfg, out_dir / "last.pt")
+        speeds = []
+        for epoch in range(run.start_epoch, cfg.epochs):
+            lr = run.optimizer.param_groups[0]["lr"]
+            losses, seconds = _train_epoch(run, cfg, epoch)
+            speeds.append(run.steps * 3 * cfg.batch_size / seconds)
+            if run.rank > 0:  # only the first process validates and writes; the others wait for its files
+                run.history.append({"epoch": epoch + 1, "global_step": run.global_step})
+                barrier()
+                continue
+            val = None
+            if do_val and ((epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs):
+                val = validate(run.model, val_refs, val_queries, run.device, cfg.val_batch_size)
+                val.pop("per_object")
+            run.history.append({"epoch": epoch + 1, "global_step": run.global_step, "lr": float(lr),
+                                "train_loss": float(np.mean(losses)), "seconds": float(seconds),
+                                "images_per_s": float(speeds[-1]), "precision": cfg.precision, "val": val})
+            _save_epoch(run, cfg, epoch, val, do_val, out_dir)
+        if run.rank == 0 and run.history:
+            plot_history(run.history, out_dir / "history.png")
+        return TrainResult(out_dir / "best.pt", out_dir / "last.pt", run.history,
+                           float(np.mean(speeds)) if speeds else float("nan"))
+    finally:
+        torch.set_num_threads(old_threads)
+
+
+def _check_inputs(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: dict[str, ObjectViews],
+                  val_refs: dict[str, ObjectViews], val_queries: dict[str, ObjectViews]) -> list[str]:
+    """The training objects' names, sorted, after checking that the views fit together (ValueError naming
+    the argument otherwise): queries and validation use training objects only, images fit the model."""
     names = sorted(train_refs)
     if not names:
         raise ValueError("train_refs: expected at least one training object")
@@ -180,128 +241,106 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
     if not set(val_queries) <= set(val_refs):
         raise ValueError(f"val_queries: objects {sorted(set(val_queries) - set(val_refs))} have no "
                          "validation references in val_refs")
-    size = cfg.model.image_size
     for views, what in ((train_refs, "train_refs"), (train_queries, "train_queries"),
                         (val_refs, "val_refs"), (val_queries, "val_queries")):
-        _check_views(views, what, size, context_ok=what == "train_queries")
+        _check_views(views, what, cfg.model.image_size, context_ok=what == "train_queries")
     if any(len(train_refs[n]) == 0 for n in names):
         raise ValueError("train_refs: every training object needs at least one reference")
-    do_val = any(len(v) for v in val_queries.values())
+    return names
 
+
+def _setup(cfg: TrainConfig, names: list[str], train_refs: dict[str, ObjectViews],
+           train_queries: dict[str, ObjectViews], clean_queries: dict[str, ObjectViews] | None) -> _Run:
+    """Batches, the network (seeded), data parallelism when launched with several processes, Adam and the
+    learning-rate schedule. The order of the random draws is part of the run's identity: keep it."""
+    aug = replace(cfg.augment, occlusion=cfg.augment.occlusion or cfg.occlusion)
+    if cfg.clean_steps and not clean_queries:
+        raise ValueError("TrainConfig.clean_steps > 0 needs clean_queries (clean renders of the training objects)")
+    batcher = _Batcher(names, train_refs, train_queries, aug, cfg.model.image_size, cfg.random_ref, clean_queries)
+    if len(batcher) == 0:
+        raise ValueError("train_queries: expected at least one training query")
+    steps = cfg.steps_per_epoch or math.ceil(len(batcher) / cfg.batch_size)
+    rank, world = distributed_world()
+    if world > 1 and (3 * cfg.batch_size) % world:
+        raise ValueError(f"TrainConfig.batch_size: 3 x {cfg.batch_size} images per step do not split evenly "
+                         f"over {world} processes")
     device = resolve_device(cfg.device)
-    old_threads = torch.get_num_threads()
-    if cfg.num_threads is not None:
-        torch.set_num_threads(cfg.num_threads)
-    try:
-        aug = replace(cfg.augment, occlusion=cfg.augment.occlusion or cfg.occlusion)
-        if cfg.clean_steps and not clean_queries:
-            raise ValueError("TrainConfig.clean_steps > 0 needs clean_queries (clean renders of the training objects)")
-        batcher = _Batcher(names, train_refs, train_queries, aug, size, cfg.random_ref, clean_queries)
-        if len(batcher) == 0:
-            raise ValueError("train_queries: expected at least one training query")
-        steps = cfg.steps_per_epoch or math.ceil(len(batcher) / cfg.batch_size)
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    model = OrientationNet(cfg.model).to(device)
+    model.precision = cfg.precision
+    encode = None
+    if world > 1:  # every process holds the same weights; gradients are averaged by DDP
+        net = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+        encode = sharded_encoder(net, rank, world)
+    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_factor(cfg, steps))
+    return _Run(model, optimizer, scheduler, rng, batcher, steps, device, rank, world, encode)
 
-        rank, world = distributed_world()
-        if world > 1 and (3 * cfg.batch_size) % world:
-            raise ValueError(f"TrainConfig.batch_size: 3 x {cfg.batch_size} images per step do not split evenly "
-                             f"over {world} processes")
-        torch.manual_seed(cfg.seed)
-        rng = np.random.default_rng(cfg.seed)
-        model = OrientationNet(cfg.model).to(device)
-        model.precision = cfg.precision
-        encode = None
-        if world > 1:  # every process holds the same weights; gradients are averaged by DDP
-            from torch.nn.parallel import DistributedDataParallel
 
-            net = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
-            encode = sharded_encoder(net, rank, world)
-        optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_factor(cfg, steps))
-        history: list[dict] = []
-        start_epoch, global_step = 0, 0
-        best_metric, best_epoch = -math.inf, None
-        last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
+def _resume(run: _Run, cfg: TrainConfig, last_path: Path) -> None:
+    """Continue from ``last.pt``: weights, optimiser, schedule, history, best epoch and both random streams."""
+    ck = read_checkpoint(last_path, run.device)
+    old, new = ck["config"], cfg.to_dict()
+    diff = sorted(k for k in new if k not in _RESUMABLE_CHANGES and old.get(k) != new[k])
+    if diff:
+        raise ValueError(f"resume: {last_path} was trained with a different config "
+                         f"(fields {diff}); use resume=False or another out_dir")
+    run.model.load_state_dict(ck["model"])
+    run.optimizer.load_state_dict(ck["optimizer"])
+    run.scheduler.load_state_dict(ck["scheduler"])
+    run.start_epoch, run.global_step = ck["epoch"], ck["global_step"]
+    run.history = list(ck["history"])
+    run.best_metric, run.best_epoch = ck["best_metric"], ck["best_epoch"]
+    run.rng.bit_generator.state = ck["numpy_rng"]
+    _set_rng_state(ck["rng"])
 
-        if resume and last_path.exists():
-            ck = read_checkpoint(last_path, device)
-            old, new = ck["config"], cfg.to_dict()
-            diff = sorted(k for k in new if k not in _RESUMABLE_CHANGES and old.get(k) != new[k])
-            if diff:
-                raise ValueError(f"resume: {last_path} was trained with a different config "
-                                 f"(fields {diff}); use resume=False or another out_dir")
-            model.load_state_dict(ck["model"])
-            optimizer.load_state_dict(ck["optimizer"])
-            scheduler.load_state_dict(ck["scheduler"])
-            start_epoch, global_step = ck["epoch"], ck["global_step"]
-            history = list(ck["history"])
-            best_metric = ck["best_metric"]
-            best_epoch = ck["best_epoch"]
-            rng.bit_generator.state = ck["numpy_rng"]
-            _set_rng_state(ck["rng"])
 
-        speeds = []
-        for epoch in range(start_epoch, cfg.epochs):
-            model.train()
-            lr = optimizer.param_groups[0]["lr"]
-            order = _order_stream(rng, len(batcher), steps * cfg.batch_size)
-            losses = []
-            t0 = time.perf_counter()
-            bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress or rank > 0,
-                       leave=False)
-            for step in bar:
-                picks = order[step * cfg.batch_size:(step + 1) * cfg.batch_size]
-                p_clean = max(0.0, 1.0 - global_step / cfg.clean_steps) if cfg.clean_steps else 0.0
-                imgs, q_obj, q_rot, r_obj, r_rot = batcher.make(picks, rng, p_clean)
-                loss = train_step(model, optimizer, images_to_tensor(imgs).to(device),
-                                  q_obj, q_rot, r_obj, r_rot, cfg.tau, cfg.weighted_loss, encode)
-                if not math.isfinite(loss):
-                    raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}, step {step}")
-                losses.append(loss)
-                scheduler.step()
-                global_step += 1
-                bar.set_postfix(loss=f"{loss:.4f}")
-            seconds = time.perf_counter() - t0
-            speed = steps * 3 * cfg.batch_size / seconds
-            speeds.append(speed)
+def _train_epoch(run: _Run, cfg: TrainConfig, epoch: int) -> tuple[list[float], float]:
+    """One epoch of ``run.steps`` optimiser steps; returns (losses, wall seconds)."""
+    run.model.train()
+    order = _order_stream(run.rng, len(run.batcher), run.steps * cfg.batch_size)
+    losses = []
+    t0 = time.perf_counter()
+    bar = tqdm(range(run.steps), desc=f"epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress or run.rank > 0,
+               leave=False)
+    for step in bar:
+        picks = order[step * cfg.batch_size:(step + 1) * cfg.batch_size]
+        # clean-to-real curriculum: P(clean render) falls from 1 to 0 over clean_steps
+        p_clean = max(0.0, 1.0 - run.global_step / cfg.clean_steps) if cfg.clean_steps else 0.0
+        imgs, q_obj, q_rot, r_obj, r_rot = run.batcher.make(picks, run.rng, p_clean)
+        loss = train_step(run.model, run.optimizer, images_to_tensor(imgs).to(run.device),
+                          q_obj, q_rot, r_obj, r_rot, cfg.tau, cfg.weighted_loss, run.encode)
+        if not math.isfinite(loss):
+            raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}, step {step}")
+        losses.append(loss)
+        run.scheduler.step()
+        run.global_step += 1
+        bar.set_postfix(loss=f"{loss:.4f}")
+    return losses, time.perf_counter() - t0
 
-            val = None
-            if rank > 0:  # only the first process validates and writes; the others wait for its files
-                history.append({"epoch": epoch + 1, "global_step": global_step})
-                barrier()
-                continue
-            if do_val and ((epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs):
-                val = validate(model, val_refs, val_queries, device, cfg.val_batch_size)
-                val.pop("per_object")
-            history.append({"epoch": epoch + 1, "global_step": global_step, "lr": float(lr),
-                            "train_loss": float(np.mean(losses)), "seconds": float(seconds),
-                            "images_per_s": float(speed), "precision": cfg.precision, "val": val})
 
-            metric = None if val is None else selection_metric(val, cfg.select_on)
-            improved = (metric is not None and metric >= best_metric) or not do_val
-            if improved:
-                best_metric = metric if metric is not None else best_metric
-                best_epoch = epoch + 1
-                # best.pt first: if we die before last.pt, the resumed run redoes this epoch.
-                _atomic_torch_save({"model": model.state_dict(), "model_config": cfg.model.to_dict(),
-                                    "config": cfg.to_dict(), "epoch": epoch + 1, "val": val,
-                                    "history": history}, best_path)
-            _atomic_torch_save({"model": model.state_dict(), "optimizer": optimizer.state_dict(),
-                                "scheduler": scheduler.state_dict(), "epoch": epoch + 1,
-                                "global_step": global_step, "rng": _rng_state(),
-                                "numpy_rng": rng.bit_generator.state, "config": cfg.to_dict(),
-                                "model_config": cfg.model.to_dict(), "history": history,
-                                "best_metric": best_metric, "best_epoch": best_epoch}, last_path)
-            atomic_write_text(out_dir / "history.json",
-                              json.dumps({"best_epoch": best_epoch, "history": history}, indent=1))
-            if world > 1:
-                barrier()
-        if rank > 0:
-            return TrainResult(best_path, last_path, history, float(np.mean(speeds)) if speeds else float("nan"))
-        if history:
-            plot_history(history, out_dir / "history.png")
-        return TrainResult(best_path, last_path, history, float(np.mean(speeds)) if speeds else float("nan"))
-    finally:
-        torch.set_num_threads(old_threads)
+def _save_epoch(run: _Run, cfg: TrainConfig, epoch: int, val: dict | None, do_val: bool, out_dir: Path) -> None:
+    """Model selection (``select_on`` on held-out views of seen objects) and this epoch's files:
+    best.pt when it improved, then last.pt and history.json."""
+    metric = None if val is None else selection_metric(val, cfg.select_on)
+    if (metric is not None and metric >= run.best_metric) or not do_val:
+        run.best_metric = metric if metric is not None else run.best_metric
+        run.best_epoch = epoch + 1
+        # best.pt first: if we die before last.pt, the resumed run redoes this epoch.
+        _atomic_torch_save({"model": run.model.state_dict(), "model_config": cfg.model.to_dict(),
+                            "config": cfg.to_dict(), "epoch": epoch + 1, "val": val,
+                            "history": run.history}, out_dir / "best.pt")
+    _atomic_torch_save({"model": run.model.state_dict(), "optimizer": run.optimizer.state_dict(),
+                        "scheduler": run.scheduler.state_dict(), "epoch": epoch + 1,
+                        "global_step": run.global_step, "rng": _rng_state(),
+                        "numpy_rng": run.rng.bit_generator.state, "config": cfg.to_dict(),
+                        "model_config": cfg.model.to_dict(), "history": run.history,
+                        "best_metric": run.best_metric, "best_epoch": run.best_epoch}, out_dir / "last.pt")
+    atomic_write_text(out_dir / "history.json",
+                      json.dumps({"best_epoch": run.best_epoch, "history": run.history}, indent=1))
+    if run.world > 1:
+        barrier()
 
 
 def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict:

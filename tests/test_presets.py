@@ -1,0 +1,69 @@
+"""A preset's files agree with each other: parameters once (presets/<preset>/common.yaml), and the
+notebooks that share a benchmark or a model get the same data and training parameters."""
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from helpers.study import runner
+from helpers.study.parameters import _DATA, _MODEL, _TRAIN, ParameterError
+
+PRESETS = runner.PRESETS  # "smoke" is the notebooks' own defaults (no folder)
+#: Notebooks that render or load the LineMOD-like benchmark: one set of data parameters.
+BENCHMARK = ("01_render", "02_train", "03_evaluate", "04_ablation_scales", "05_ablation_fusion",
+             "06_reference_count", "07_fast_vs_greedy", "08_components")
+#: Notebooks that train (or load) the split's main model: one run, so one set of training parameters.
+MAIN_MODEL = ("02_train", "03_evaluate", "06_reference_count", "07_fast_vs_greedy")
+#: Ablation notebooks: every variant at one budget (which may be smaller than the main model's).
+ABLATIONS = ("04_ablation_scales", "05_ablation_fusion", "08_components")
+TRAINING = _MODEL + _TRAIN + ("val_refs",)
+
+
+def _params(preset: str) -> dict[str, dict]:
+    return {nb: runner.preset_parameters(preset, nb) for nb in runner.notebooks()}
+
+
+def _disagreements(P: dict[str, dict], notebooks: tuple[str, ...], keys: tuple[str, ...]) -> dict:
+    out = {}
+    for k in keys:
+        vals = {nb: P[nb][k] for nb in notebooks if k in P[nb]}
+        if len(set(map(repr, vals.values()))) > 1:
+            out[k] = vals
+    return out
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_notebooks_sharing_data_or_a_model_agree(preset):
+    P = _params(preset)
+    assert not _disagreements(P, BENCHMARK, _DATA), f"{preset}: data parameters differ between notebooks"
+    assert not _disagreements(P, MAIN_MODEL, TRAINING), f"{preset}: the main model's training parameters differ"
+    assert not _disagreements(P, ABLATIONS, TRAINING), f"{preset}: the ablations' training parameters differ"
+
+
+@pytest.mark.parametrize("preset", [p for p in PRESETS if (runner.PRESET_DIR / p).is_dir()])
+def test_parameters_once(preset):
+    """A notebook's file never repeats a value common.yaml already gives it."""
+    d = runner.PRESET_DIR / preset
+    common = yaml.safe_load((d / runner.COMMON).read_text())
+    for f in sorted(d.glob("[0-9][0-9]_*.yaml")):
+        own = yaml.safe_load(f.read_text()) or {}
+        repeated = sorted(k for k, v in own.items() if k in common and common[k] == v)
+        assert not repeated, f"{f}: {repeated} repeat presets/{preset}/common.yaml"
+
+
+def test_common_file_is_merged_and_checked(tmp_path, monkeypatch):
+    d = tmp_path / "quick"
+    d.mkdir()
+    (d / runner.COMMON).write_text("epochs: 3\nimage_size: 64\n")
+    (d / "02_train.yaml").write_text("epochs: 5\n")
+    monkeypatch.setattr(runner, "PRESET_DIR", Path(tmp_path))
+    assert runner.preset_parameters("quick", "02_train")["epochs"] == 5  # the notebook's own file wins
+    assert runner.preset_parameters("quick", "03_evaluate")["epochs"] == 3  # common applies to every notebook
+    assert "epochs" not in runner.preset_parameters("quick", "01_render")  # ... that declares the name
+    (d / runner.COMMON).write_text("epoch: 3\n")
+    with pytest.raises(ParameterError, match=r"common.yaml: parameter\(s\) \['epoch'\] are declared by no notebook"):
+        runner.preset_parameters("quick", "02_train")
+    (d / runner.COMMON).write_text("epochs: three\n")
+    with pytest.raises(ParameterError, match=r"common.yaml.*'epochs' expects int"):
+        runner.preset_parameters("quick", "03_evaluate")

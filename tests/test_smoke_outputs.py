@@ -1,0 +1,143 @@
+"""What the notebooks' smoke runs (nbval, same pytest session) wrote: keys, types and value ranges of
+their result files, read back as a reader of ``reports/smoke/`` would. Skipped when the notebooks did
+not run in this session (e.g. ``pytest tests/``)."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from helpers.core.paths import REPO_ROOT
+from helpers.evaluation.claims import build_claims
+from helpers.evaluation.search_results import FAST_ROW, GREEDY_ROW, SearchComparison
+from helpers.evaluation.stats import VERDICTS
+
+pytestmark = pytest.mark.after_notebooks
+SMOKE = REPO_ROOT / "reports" / "smoke"
+
+
+def _fresh(nb: str, session_start: float) -> Path:
+    d = SMOKE / nb
+    run = d / "run.json"
+    if not run.exists() or run.stat().st_mtime < session_start:
+        pytest.skip(f"notebooks/{nb}.ipynb did not run in this pytest session (no fresh {run})")
+    return d
+
+
+def _json(path: Path) -> dict:
+    assert path.exists(), f"{path} was not written"
+    return json.loads(path.read_text())
+
+
+def _pct(x) -> bool:
+    return isinstance(x, (int, float)) and 0.0 <= x <= 100.0
+
+
+def _per_query(path: Path, cols=("obj", "query_id", "rot_ok", "class_ok")) -> pd.DataFrame:
+    df = pd.read_csv(path)
+    assert set(cols) <= set(df.columns), f"{path}: columns {list(df.columns)}"
+    assert len(df) > 0 and df["rot_ok"].isin([0, 1, True, False]).all()
+    assert (df["rot_ok"].astype(bool) <= df["class_ok"].astype(bool)).all(), f"{path}: rot_ok without class_ok"
+    return df
+
+
+NOTEBOOKS = ["01_render", "02_train", "03_evaluate", "04_ablation_scales", "05_ablation_fusion",
+             "06_reference_count", "07_fast_vs_greedy", "08_components", "09_tless", "10_explore"]
+
+
+@pytest.mark.parametrize("nb", NOTEBOOKS)
+def test_every_run_records_its_provenance(nb, session_start):
+    r = _json(_fresh(nb, session_start) / "run.json")
+    assert {"parameters", "seed", "git", "packages", "device"} <= set(r), sorted(r)
+    assert str(r["parameters"]["out_dir"]).endswith(f"smoke/{nb}")
+    assert r["git"].get("commit") and r["packages"].get("torch") and r["device"].get("resolved")
+
+
+def test_render_summary(session_start):
+    s = _json(_fresh("01_render", session_start) / "render_summary.json")
+    assert len(s["objects"]) >= 13 and s["views"] > 0 and s["render_or_load_seconds"] >= 0
+    assert s["gl_platform"] in ("egl", "osmesa") and s["reference_bytes_per_object"] > 0
+
+
+def test_train_metrics(session_start):
+    d = _fresh("02_train", session_start)
+    m = _json(d / "train_metrics.json")
+    assert m["split"] in (1, 2, 3) and m["train_images_per_s"] > 0
+    assert m["parameters"]["encoder_decoder"] > 0 and m["parameters"]["fusion_head"] > 0
+    u, ch = m["unseen_test"], m["chance"]
+    assert _pct(u["rot_acc"]) and _pct(u["class_acc"]) and u["rot_acc"] <= u["class_acc"]
+    assert 0 < ch["class_acc"] < 100 and 0 < ch["rot_acc"] < ch["class_acc"]
+    steps = [h["global_step"] for h in _json(d / "history.json")["history"]]
+    assert steps == sorted(steps) and steps[-1] > 0
+
+
+def test_evaluation_metrics_and_byo(session_start):
+    d = _fresh("03_evaluate", session_start)
+    m = _json(d / "metrics.json")
+    t1 = pd.DataFrame(m["table1"])
+    assert t1["split"].iloc[-1] == "mean" and all(_pct(v) for v in t1["unseen rot_acc"])
+    assert {"method", "unseen rot_acc"} <= set(pd.DataFrame(m["table2"]).columns)
+    assert m["protocol"]["method"] in ("fast", "greedy", "c2f") and m["protocol"]["threshold_deg"] == 30.0
+    ours = _per_query(d / "per_query_ours.csv", ("split", "part", "obj", "query_id", "rot_ok", "class_ok"))
+    assert set(ours["part"]) == {"unseen", "seen", "occluded"}
+    _per_query(d / "per_query_hog.csv")
+    byo = _json(d / "byo.json")
+    R = np.array(byo["R_m2c"])
+    assert R.shape == (3, 3) and np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.linalg.det(R) > 0
+    assert 0.0 <= byo["error_deg"] <= 180.0
+
+
+@pytest.mark.parametrize("nb", ["04_ablation_scales", "05_ablation_fusion", "08_components"])
+def test_ablation_metrics(nb, session_start):
+    m = _json(_fresh(nb, session_start) / "metrics.json")
+    table = pd.DataFrame(m["table"])
+    assert len(table) >= 2 and table["variant"].is_unique and all(_pct(v) for v in table["unseen rot_acc"])
+    claims = [p for v in m["trend"].values() if isinstance(v, dict) for p in (v.get("pairs") or [v])]
+    assert claims, f"{nb}: no paired claim in its trend"
+    for c in claims:
+        assert c["verdict"] in VERDICTS and c["ci"][0] <= c["ci"][1] and math.isfinite(c["diff_pts"])
+        assert set(c["compare"].split(" vs ")) <= set(table["variant"])
+
+
+def test_reference_count_metrics(session_start):
+    d = _fresh("06_reference_count", session_start)
+    t = pd.DataFrame(_json(d / "metrics.json")["table"])
+    counts = list(t["refs_per_object"])
+    assert counts == sorted(counts) and (t["queries/s"] > 0).all()
+    for c in counts:
+        _per_query(d / f"per_query_{c:.0f}refs.csv")
+
+
+def test_fast_vs_greedy_results(session_start):
+    r = SearchComparison.load(_fresh("07_fast_vs_greedy", session_start))
+    assert r is not None and r.n_queries > 0 and r.bank["k_ac"] >= 1
+    assert {GREEDY_ROW, FAST_ROW} <= set(r.per_query)
+    for pq in r.per_query.values():
+        assert len(pq) == r.n_queries and (pq["seconds"] > 0).all()
+    assert r.median_seconds(GREEDY_ROW) > 0 and 0.0 <= r.agreement_30deg[FAST_ROW]["share"] <= 1.0
+
+
+def test_tless_metrics(session_start):
+    d = _fresh("09_tless", session_start)
+    m = _json(d / "metrics.json")
+    assert len(m["set"]["parts"]) >= 15 and _pct(m["hog_calibration"]["vsd_acc"])
+    ours = _per_query(d / "per_query_ours.csv", ("obj", "query_id", "rot_ok", "class_ok", "vsd_ok"))
+    assert ours["vsd_ok"].isin([0, 1, True, False]).all()
+
+
+def test_explore_records(session_start):
+    e = _json(_fresh("10_explore", session_start) / "explore.json")
+    assert len(e["bank"]) == 13 and e["queries"] and 0 <= e["score_peak_within_30deg"] <= len(e["queries"])
+
+
+def test_claims_of_the_smoke_reports(session_start):
+    _fresh("03_evaluate", session_start)
+    claims = build_claims(SMOKE)
+    ids = [c["id"] for c in claims]
+    assert len(ids) == len(set(ids)) and {"unseen_rot_acc", "hog_unseen_rot_acc", "ours_minus_hog"} <= set(ids)
+    for c in claims:
+        assert c["verdict"] in VERDICTS, c
+        assert c["ci95"] is None or (c["ci95"][0] <= c["ci95"][1] and all(math.isfinite(v) for v in c["ci95"]))
