@@ -96,7 +96,8 @@ SECTIONS = ("train", "train_step", "encode", "retrieval", "fusion")
 DEFAULT_CAPS = {"train": 120.0, "train_step": 35.0, "encode": 25.0, "retrieval": 170.0, "fusion": 30.0}
 WATCHDOG_GRACE_S = 15.0  # the watchdog fires this long after the budget
 
-MEASURED_MODULES = ("model", "train", "retrieval", "losses", "augment", "rotations", "views")
+MEASURED_MODULES = ("net/model.py", "training/train.py", "search/retrieval.py", "training/losses.py",
+                    "training/augment.py", "core/rotations.py", "core/views.py")
 
 
 def _git_revision() -> dict:
@@ -123,7 +124,7 @@ def _sha256(path: Path) -> str | None:
 def source_hashes() -> dict:
     """sha256 of the measured helpers modules and of this script and its two section modules
     (the tree may differ from the commit)."""
-    out = {m: _sha256(REPO / "src" / "helpers" / f"{m}.py") for m in MEASURED_MODULES}
+    out = {m: _sha256(REPO / "src" / "helpers" / m) for m in MEASURED_MODULES}
     for name in ("bench_gpu.py", "gpu_sections.py", "gpu_retrieval.py"):
         out[f"benchmarks/{name}"] = _sha256(Path(_HERE) / name)
     return out

@@ -220,8 +220,10 @@ def log(msg: str) -> None:
     print(f"[bench {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-MEASURED_MODULES = ("model", "model_config", "fusion_kernel", "retrieval", "bank", "features", "datasets", "render",
-                    "rotations", "losses", "train", "augment")
+MEASURED_MODULES = ("net/model.py", "core/configs.py", "net/fusion_kernel.py", "net/fusion_kernel.cpp",
+                    "search/retrieval.py", "search/bank.py", "search/fps.py", "search/features.py",
+                    "data/datasets.py", "data/render.py", "data/gl.py", "core/rotations.py", "training/losses.py",
+                    "training/train.py", "training/augment.py")
 
 
 def source_hashes() -> dict:
@@ -230,4 +232,4 @@ def source_hashes() -> dict:
     from helpers.core.fileio import sha256_file
 
     root = Path(helpers.__file__).parent
-    return {m: sha256_file(root / f"{m}.py")[:16] for m in MEASURED_MODULES if (root / f"{m}.py").exists()}
+    return {m: sha256_file(root / m)[:16] for m in MEASURED_MODULES if (root / m).exists()}
