@@ -147,22 +147,13 @@ def test_long_preset_trains_the_zoo_recipes_runs():
     the long preset and `python -m helpers.study.zoo train` share (and resume) the same cache runs."""
     from dataclasses import asdict
 
-    from helpers.core.configs import AugmentConfig, DataConfig, ModelConfig, TrainConfig, parse_scales
+    from helpers.study.parameters import configs_from
     from helpers.study.pipeline import _train_key
     from helpers.study.runner import preset_parameters
 
     P = preset_parameters("long", "02_train")
-    data = DataConfig(image_size=P["image_size"], render_size=P["render_size"], n_references=P["n_references"],
-                      n_train_queries=P["n_train_queries"], n_val_queries=P["n_val_queries"],
-                      n_test_queries=P["n_test_queries"], query_style=P["query_style"],
-                      train_context=P["train_context"], seed=P["seed"])
-    cfg = TrainConfig(epochs=P["epochs"], steps_per_epoch=P["steps_per_epoch"] or None, batch_size=P["batch_size"],
-                      lr=P["lr"], lr_milestones=tuple(P["lr_milestones"]), lr_schedule=P["lr_schedule"],
-                      warmup_steps=P["warmup_steps"], clean_steps=P["clean_steps"], random_ref=P["random_ref"],
-                      weighted_loss=P["weighted_loss"], seed=P["seed"], occlusion=P["train_occlusion"],
-                      augment=AugmentConfig(), val_every=P["val_every"],
-                      model=ModelConfig(image_size=P["image_size"], fusion=P["fusion"], scales=parse_scales(P["scales"]),
-                                        local_norm=P["local_norm"], norm_window=P["norm_window"]))
+    c = configs_from(P)
+    data, cfg = c.data, c.train
     r = zoo.recipe("split1")
     assert _train_key(cfg) == _train_key(r.train)
     assert {k: v for k, v in asdict(data).items() if k not in ("workers", "cache_dir")} == \

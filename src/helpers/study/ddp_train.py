@@ -18,9 +18,9 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from dataclasses import replace
 
-from ..core.configs import AugmentConfig, DataConfig, ModelConfig, TrainConfig, parse_scales
-from .parameters import ParameterError, check_values
+from .parameters import ParameterError, check_values, configs_from
 from .pipeline import prepare_data, train_or_load
 from .runner import preset_parameters
 
@@ -54,19 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rank = dist.get_rank()
         device = f"cuda:{local}" if cuda else "cpu"
-        data_cfg = DataConfig(image_size=P["image_size"], render_size=P["render_size"],
-                              n_references=P["n_references"], n_train_queries=P["n_train_queries"],
-                              n_val_queries=P["n_val_queries"], n_test_queries=P["n_test_queries"],
-                              query_style=P["query_style"], train_context=P["train_context"], seed=P["seed"],
-                              workers=P["workers"], cache_dir=P["cache_dir"])
-        train_cfg = TrainConfig(
-            epochs=P["epochs"], steps_per_epoch=P["steps_per_epoch"] or None, batch_size=P["batch_size"], lr=P["lr"],
-            lr_milestones=tuple(P["lr_milestones"]), lr_schedule=P["lr_schedule"], warmup_steps=P["warmup_steps"],
-            clean_steps=P["clean_steps"], random_ref=P["random_ref"], weighted_loss=P["weighted_loss"],
-            seed=P["seed"], device=device, occlusion=P["train_occlusion"], augment=AugmentConfig(),
-            val_every=P["val_every"], progress=rank == 0,
-            model=ModelConfig(image_size=P["image_size"], fusion=P["fusion"], scales=parse_scales(P["scales"]),
-                              local_norm=P["local_norm"], norm_window=P["norm_window"]))
+        cfg = configs_from(P)  # the notebook's typed configs; this process's device and bar
+        data_cfg, train_cfg = cfg.data, replace(cfg.train, device=device, progress=rank == 0)
         if rank == 0:  # one process renders; the others then load the cached sets
             prepare_data(data_cfg)
         dist.barrier()
