@@ -73,6 +73,8 @@ def test_claims_file_from_a_report_folder(tmp_path):
     hog.to_csv(ev / "per_query_hog.csv", index=False)
     glob_ = _pq(rng, {1: ["a", "b"]}, {o: 0.5 for o in "ab"})
     glob_.to_csv(ev / "per_query_global.csv", index=False)
+    held = _pq(rng, {1: ["f", "g"]}, {"f": 0.9, "g": 0.1}).assign(model="all")
+    held.to_csv(ev / "per_query_held_out.csv", index=False)
     fusion = tmp_path / "05_ablation_fusion"
     fusion.mkdir()
     (fusion / "metrics.json").write_text(json.dumps({"table": [], "split": 1, "trend": {
@@ -93,6 +95,8 @@ def test_claims_file_from_a_report_folder(tmp_path):
     assert ids["hog_unseen_rot_acc"]["verdict"] == "calibrated"  # ~30 %, inside 25-40
     assert ids["ours_minus_hog"]["verdict"] == "holds" and ids["ours_minus_hog"]["ci95"][0] > 0
     assert "#1" in ids["ours_minus_global"]["claim"]  # Global ran on split 1 only
+    h = ids["held_out_rot_acc"]  # the named model on objects no split trains on, with its interval
+    assert "(all;" in h["claim"] and h["ci95"][0] <= h["ours"] <= h["ci95"][1] and 35 < h["ours"] < 65
     assert ids["fusion:adaptive_beats_avg"]["paper"] == pytest.approx(89.55 - 80.9)
     assert ids["fusion:adaptive_beats_avg"]["verdict"] == "within noise"
     assert build_claims(tmp_path / "missing") == []

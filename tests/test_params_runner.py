@@ -71,6 +71,17 @@ def test_kernel_namespace_check():
         check_parameters("02_train", ns)
 
 
+def test_byo_model_must_be_a_zoo_model_of_the_crop_size():
+    from helpers.study.parameters import check_values
+
+    P = declared_parameters(notebook_path("03_evaluate"))
+    check_values("03_evaluate", {**P, "image_size": 64, "byo_model": "all"})
+    with pytest.raises(ParameterError, match=r"'byo_model' expects a zoo model among .*'all'"):
+        check_values("03_evaluate", {**P, "byo_model": "everything"})
+    with pytest.raises(ParameterError, match=r"'byo_model' expects a model taking image_size=128"):
+        check_values("03_evaluate", {**P, "image_size": 128, "render_size": 160, "byo_model": "all"})
+
+
 def test_all_presets_validate_and_bad_preset_is_refused(tmp_path, monkeypatch):
     for preset in ("smoke", "quick", "long", "paper"):
         for n in notebooks():

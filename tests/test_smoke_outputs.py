@@ -84,7 +84,10 @@ def test_evaluation_metrics_and_byo(session_start):
     ours = _per_query(d / "per_query_ours.csv", ("split", "part", "obj", "query_id", "rot_ok", "class_ok"))
     assert set(ours["part"]) == {"unseen", "seen", "occluded"}
     _per_query(d / "per_query_hog.csv")
+    held = _per_query(d / "per_query_held_out.csv", ("obj", "query_id", "rot_ok", "class_ok", "model"))
+    assert set(held["obj"]).isdisjoint(ours["obj"])  # held-out objects belong to no split
     byo = _json(d / "byo.json")
+    assert byo["model"] == m["held_out"]["model"] == held["model"].iloc[0] and byo["object"] in set(held["obj"])
     R = np.array(byo["R_m2c"])
     assert R.shape == (3, 3) and np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.linalg.det(R) > 0
     assert 0.0 <= byo["error_deg"] <= 180.0

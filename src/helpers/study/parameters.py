@@ -214,6 +214,8 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         m = P["lr_milestones"]
         if list(m) != sorted(set(m)) or any(x < 1 for x in m):
             raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
+    if P.get("byo_model"):  # 03: the held-out objects' and bring-your-own model
+        _check_model_choice(notebook, "byo_model", P["byo_model"], P["image_size"])
     if notebook.startswith("10"):
         _check_explore(notebook, P)
     if notebook.startswith("09"):
