@@ -101,3 +101,15 @@ def test_report_shows_seed_spread_and_a_reexecution(tmp_path):
     assert "| `fusion:adaptive_beats_avg` | adaptive beats avg" in rep and "| 5.9 |" in rep
     assert "re-executed after the timed run" in rep and "05_ablation_fusion 61 s" in rep
     assert "| 05_ablation_fusion | 1464 |" in rep  # the timed run's wall time stays in the table
+
+
+def test_provenance_names_each_commit_with_its_notebooks_after_a_partial_rerun(tmp_path):
+    for nb, commit in (("01_render", "aaa"), ("02_train", "aaa"), ("03_evaluate", "bbb")):
+        (tmp_path / "z" / nb).mkdir(parents=True)
+        run_json = {"git": {"commit": commit, "dirty": nb == "03_evaluate"}}
+        (tmp_path / "z" / nb / "run.json").write_text(json.dumps(run_json))
+    rep = build_report("z", root=tmp_path).read_text()
+    assert ("notebooks ran at git commits `aaa` (01_render, 02_train); `bbb` (uncommitted changes) (03_evaluate)"
+            in rep)
+    (tmp_path / "z" / "03_evaluate" / "run.json").write_text(json.dumps({"git": {"commit": "aaa"}}))
+    assert "notebooks ran at git commit `aaa`; " in build_report("z", root=tmp_path).read_text()

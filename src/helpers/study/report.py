@@ -117,13 +117,25 @@ def build_report(preset: str, root: Path | None = None) -> Path:
     return out
 
 
+def _commits_line(runs: list[Path]) -> str:
+    """"git commit `abc…`" when every notebook ran at one commit, else each commit with its notebooks
+    (a partial rerun with ``--only`` leaves the others' outputs from an earlier commit)."""
+    by_commit: dict[str, list[str]] = {}
+    for f in runs:
+        g = (_load(f) or {}).get("git", {})
+        key = f"`{g.get('commit')}`{' (uncommitted changes)' if g.get('dirty') else ''}"
+        by_commit.setdefault(key, []).append(f.parent.name)
+    if len(by_commit) == 1:
+        return f"git commit {next(iter(by_commit))}"
+    return "git commits " + "; ".join(f"{k} ({', '.join(v)})" for k, v in by_commit.items())
+
+
 def _provenance(base: Path) -> list[str]:
     runs = sorted(base.glob("*/run.json"))
     timings = _load(base / "timings.json") or {}
     if not runs:
         return ["_No notebook has run for this preset yet._", ""]
     r = _load(runs[0])
-    git = r.get("git", {})
     dev = r.get("device", {})
     gl = (_load(base / "01_render" / "render_summary.json") or {}).get("gl_platform") or r.get("gl_platform")
     fk = dev.get("fusion_kernel") or {}
@@ -132,7 +144,7 @@ def _provenance(base: Path) -> list[str]:
                    f"; fusion: eager PyTorch ({fk.get('reason')})" if fk else "")
     built = git_revision()
     out = ["## Provenance", "",
-           f"- notebooks ran at git commit `{git.get('commit')}`{' (uncommitted changes)' if git.get('dirty') else ''}; "
+           f"- notebooks ran at {_commits_line(runs)}; "
            f"this file was assembled from their output files at `{built.get('commit')}`"
            f"{' (uncommitted changes)' if built.get('dirty') else ''}",
            f"- device `{dev.get('resolved')}` ({dev.get('cpu_count')} CPUs, torch threads {dev.get('torch_threads')}"
