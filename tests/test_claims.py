@@ -129,6 +129,8 @@ def test_ablation_claims_carry_the_seed_aware_verdict_and_paired_refcount_and_fa
     assert ids["fusion:seed_noise:avg"]["verdict"] == "measured" and ids["fusion:seed_noise:avg"]["ours"] == 5.0
     r = ids["refcount_accuracy_rises"]
     assert r["verdict"] == "holds" and r["ci95"][0] > 0 and "paired" in r["claim"]
+    g = ids["greedy_rot_acc"]  # the greedy row's own accuracy with its interval
+    assert g["ours"] == pytest.approx(100 * few["rot_ok"].mean()) and g["ci95"][0] <= g["ours"] <= g["ci95"][1]
     f = ids["fast_minus_greedy"]
     assert f["ours"] == 0.0 and f["verdict"] == "within noise"
     sp = ids["fast_speedup"]  # 10x on every query: the interval is [10, 10]
