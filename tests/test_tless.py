@@ -39,7 +39,7 @@ def test_scene_depth_agrees_with_the_part_where_it_is_visible(tiny):
     ts, _ = tiny
     name = "hex_nut"
     scene = ts.depth[name][0].astype(np.float32)
-    own = render_raw(ts.parts[name], ts.queries[name].rotations[0].astype(np.float64), ts.cfg.render())[1]
+    own = render_raw(ts.parts[name], ts.queries[name].rotations[0].astype(np.float64), ts.cfg.render_config())[1]
     front = (own > 0) & (np.abs(scene - own) < 0.003)
     assert front.sum() >= 0.5 * (own > 0).sum()  # at least the kept visible share (min_visible)
     assert (scene[own > 0] <= own[own > 0] + 0.003).all()  # nothing of the scene lies behind the part's surface

@@ -211,6 +211,7 @@ class DataConfig:
             raise ValueError(f"train_context: expected a crop-side multiple in [1, 2], got {self.train_context!r}")
 
     def render_config(self) -> RenderConfig:
+        """The renderer's settings for these crop and render sides (pixels); the other defaults as set."""
         return RenderConfig(size=self.image_size, render_size=self.render_size)
 
 
@@ -233,7 +234,8 @@ class TlessConfig:
     min_visible: float = 0.5
     seed: int = 0
 
-    def render(self) -> RenderConfig:
+    def render_config(self) -> RenderConfig:
+        """The renderer's settings for these crop and render sides (pixels); the other defaults as set."""
         return RenderConfig(size=self.image_size, render_size=self.render_size)
 
 

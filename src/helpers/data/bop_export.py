@@ -47,7 +47,7 @@ def _bbox(mask: np.ndarray) -> list[int]:
 
 def _t_mm(tset: TlessSet, name: str) -> list[float]:
     """The part's translation in the camera frame, mm: on the optical axis at the renders' distance."""
-    return [0.0, 0.0, float(tset.cfg.render().distance_diameters * tset.parts[name].diameter * 1000.0)]
+    return [0.0, 0.0, float(tset.cfg.render_config().distance_diameters * tset.parts[name].diameter * 1000.0)]
 
 
 def _models(tset: TlessSet, root: Path, cache: str | os.PathLike | None) -> dict[str, int]:
@@ -77,7 +77,7 @@ def export_tless_like(tset: TlessSet, root: str | os.PathLike, cache: str | os.P
         raise ValueError("export_tless_like: this set has no full frames (rendered before SET_VERSION 2)")
     root = Path(root)
     ids = _models(tset, root, cache)
-    K = tset.cfg.render().intrinsics()
+    K = tset.cfg.render_config().intrinsics()
     for name, oid in ids.items():
         scene = root / "test" / f"{oid:06d}"
         for sub in ("rgb", "depth", "mask", "mask_visib"):

@@ -90,7 +90,7 @@ def _key(cfg: TlessConfig, m: Manifest) -> str:
 
 def _render_queries(obj: ObjectMesh, family: ClutterFamily, cfg: TlessConfig, photos: dict, rng) -> dict:
     style = query_style("linemod", **TLESS_STYLE)
-    rc = cfg.render()
+    rc = cfg.render_config()
     out = {"images": [], "masks": [], "rotations": [], "depth": [], "frames": [], "full": [], "visible": []}
     tries = 0
     while len(out["images"]) < cfg.n_queries:
@@ -121,7 +121,7 @@ def _build(d: Path, cfg: TlessConfig, m: Manifest, parts: dict[str, ObjectMesh],
                disable=not progress)
     for i, name in enumerate(names):
         obj = parts[name]
-        refs = [render_reference(obj, R, cfg.render())[0] for R in R_refs]
+        refs = [render_reference(obj, R, cfg.render_config())[0] for R in R_refs]
         bar.update(cfg.n_references)
         others = tuple(parts[n].mesh for n in names if n != name)
         family = ClutterFamily(f"tless-{name}", others, PART_GREY)
@@ -192,7 +192,7 @@ def load_bop_tless(root: str | os.PathLike, split: str = "test_primesense", size
                          info.symmetries)
         q = load_bop_views(root, split, oid, size, max_instances, min_visib=min_visib, name=name)
         parts[name] = obj
-        refs[name] = ObjectViews(name, np.stack([render_reference(obj, R, cfg.render())[0] for R in R_refs]),
+        refs[name] = ObjectViews(name, np.stack([render_reference(obj, R, cfg.render_config())[0] for R in R_refs]),
                                  R_refs.astype(np.float32), None, "reference", info.symmetries)
         queries[name] = q
         instances[name] = [by_key[k] for k in q.meta["instances"]]

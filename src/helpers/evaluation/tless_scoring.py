@@ -59,7 +59,7 @@ def vsd_errors(tset: TlessSet, name: str, R_est: np.ndarray, indices: list[int] 
     """(N,) err_vsd of estimated rotations (N, 3, 3) for part ``name``'s queries ``indices`` (default: all, in
     order): depth renders at the estimated and true rotation with the true translation, against the scene's
     depth (metres; tolerances VSD_DELTA_M, VSD_TAU_M)."""
-    obj, rc = tset.parts[name], tset.cfg.render()
+    obj, rc = tset.parts[name], tset.cfg.render_config()
     K = rc.intrinsics()
     idx = list(range(len(tset.queries[name]))) if indices is None else list(indices)
     if len(R_est) != len(idx):

@@ -194,8 +194,8 @@ def curves_figure(curves: dict, path: str | os.PathLike, title: str) -> Path:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5, 3.2))
     for label, (x, y) in curves.items():
-        ax.plot(x, y, marker=".", label=label)
+        ax.plot(x, y, marker="o" if len(x) <= 3 else ".", label=label)  # a short run's few points stay visible
     ax.set(xlabel="optimiser steps", ylabel="validation Rota. Acc. (%)", title=title)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))  # below the axes: covers no curve
     ax.grid(alpha=0.3)
     return save(fig, path)
