@@ -18,7 +18,7 @@ import pandas as pd
 from ..core.fileio import atomic_write_text
 from ..core.paths import REPO_ROOT
 from ..evaluation import paper
-from ..evaluation.claims import HOG_BAND, TLESS_HOG_BAND, claims_by_section, write_claims
+from ..evaluation.claims import HOG_BAND, TLESS_HOG_BAND, UNNAMED_MODEL, claims_by_section, write_claims
 from ..evaluation.search_results import SearchComparison
 from .provenance import git_revision
 
@@ -63,8 +63,9 @@ def _claim_line(claims: dict[str, dict], cid: str, text: str, unit: str = "point
 def _held_out_line(h: dict, claim: dict | None) -> list[str]:
     """The held-out objects' line of section 3: model, Rota. Acc. with its interval where the claim has one."""
     ci = "" if claim is None or claim["ci95"] is None else f" [{claim['ci95'][0]:.1f}, {claim['ci95'][1]:.1f}]"
-    return [f"- held-out objects (never trained on, retrieved among all objects; {h.get('model', 'first split model')}"
-            f"): Rota. Acc. {_fmt(h['rot_acc'])} %{ci}, Class. Acc. {_fmt(h['class_acc'])} %"]
+    model = h.get("model", UNNAMED_MODEL)
+    return [f"- held-out objects (never trained on, retrieved among all objects; {model}): Rota. Acc. "
+            f"{_fmt(h['rot_acc'])} %{ci}, Class. Acc. {_fmt(h['class_acc'])} %"]
 
 
 def _fmt(x: Any, nd: int = 1) -> str:
@@ -271,7 +272,7 @@ def _eval(d: Path, claims: dict[str, dict]) -> list[str]:
     out += ["", "![examples](03_evaluate/examples_unseen.png)", "", "![fusion maps](03_evaluate/fusion_maps.png)", ""]
     byo = _load(d / "byo.json")
     if byo:
-        out += [f"Bring-your-own-object demo ({byo.get('model', 'first split model')}): `{byo['object']}` from its "
+        out += [f"Bring-your-own-object demo ({byo.get('model', UNNAMED_MODEL)}): `{byo['object']}` from its "
                 f"mesh file, {byo['n_refs']} references, "
                 f"error {_fmt(byo['error_deg'])}°.", "", "![byo](03_evaluate/byo_overlay.png)", ""]
     return out
