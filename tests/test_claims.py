@@ -75,6 +75,9 @@ def test_claims_file_from_a_report_folder(tmp_path):
     glob_.to_csv(ev / "per_query_global.csv", index=False)
     held = _pq(rng, {1: ["f", "g"]}, {"f": 0.9, "g": 0.1}).assign(model="all")
     held.to_csv(ev / "per_query_held_out.csv", index=False)
+    byo = pd.DataFrame({"obj": "f", "query_id": range(40), "err_deg": np.r_[np.full(10, 5.0), np.full(30, 170.0)],
+                        "rot_ok": [True] * 10 + [False] * 30, "model": "all"})
+    byo.to_csv(ev / "byo_per_query.csv", index=False)
     fusion = tmp_path / "05_ablation_fusion"
     fusion.mkdir()
     (fusion / "metrics.json").write_text(json.dumps({"table": [], "split": 1, "trend": {
@@ -97,6 +100,9 @@ def test_claims_file_from_a_report_folder(tmp_path):
     assert "#1" in ids["ours_minus_global"]["claim"]  # Global ran on split 1 only
     h = ids["held_out_rot_acc"]  # the named model on objects no split trains on, with its interval
     assert "(all;" in h["claim"] and h["ci95"][0] <= h["ours"] <= h["ci95"][1] and 35 < h["ours"] < 65
+    b = ids["byo_rot_acc"]  # one object's photos from its mesh file: 10 of 40 within 30 deg, the model named
+    assert b["ours"] == 25.0 and b["ci95"][0] < 25.0 < b["ci95"][1] and "f's 40 test photos" in b["claim"]
+    assert "(all;" in b["claim"]
     assert ids["fusion:adaptive_beats_avg"]["paper"] == pytest.approx(89.55 - 80.9)
     assert ids["fusion:adaptive_beats_avg"]["verdict"] == "within noise"
     assert build_claims(tmp_path / "missing") == []

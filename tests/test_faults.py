@@ -250,6 +250,36 @@ def test_second_byo_call_renders_and_encodes_nothing(tmp_path, manifest, monkeyp
         byo.estimate_rotation(other, entry.mesh.resolve(), qp, **kw)
 
 
+def test_answer_views_feeds_each_photo_as_a_png_and_scores_it_with_the_object_symmetries(monkeypatch):
+    """Notebook 03's bring-your-own demo: every photo reaches estimate_rotation as a file holding exactly
+    its pixels, and errors use the benchmark's metric (an answer equal up to a symmetry is right)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    R_gt = Rotation.random(3, random_state=1).as_matrix()
+    flip = Rotation.from_euler("z", 180, degrees=True).as_matrix()
+    views = ObjectViews("box", rng.integers(0, 255, (3, 16, 16, 3), dtype=np.uint8), R_gt.astype(np.float32),
+                        kind="query", symmetries=np.stack([np.eye(3), flip]))
+    answers = [R_gt[0], R_gt[1] @ flip, R_gt[2] @ Rotation.from_euler("x", 90, degrees=True).as_matrix()]
+    seen = []
+
+    def fake(model, mesh, png, **kw):
+        seen.append(cv2.cvtColor(cv2.imread(str(png)), cv2.COLOR_BGR2RGB))
+        i = len(seen) - 1
+        return byo.ByoResult(answers[i], 0.5 + i, i, seen[-1], seen[-1])
+
+    monkeypatch.setattr(byo, "estimate_rotation", fake)
+    table, results = byo.answer_views(None, "mesh.obj", views, n=0, n_refs=8)
+    assert all(np.array_equal(a, b) for a, b in zip(seen, views.images))
+    assert np.allclose(table["err_deg"], [0.0, 0.0, 90.0], atol=0.05)  # float32 truths
+    assert table["rot_ok"].tolist() == [True, True, False] and table["class_ok"].all()
+    assert table["score"].tolist() == [0.5, 1.5, 2.5] and [r.ref_index for r in results] == [0, 1, 2]
+    seen.clear()
+    assert len(byo.answer_views(None, "mesh.obj", views, n=2)[0]) == 2  # the first n photos only
+    with pytest.raises(ValueError, match="box has no views"):
+        byo.answer_views(None, "mesh.obj", views, n=-1)
+
+
 def test_time_of_an_interrupted_notebook_counts_in_its_timing(tmp_path, monkeypatch):
     """A notebook killed once and rerun reports both attempts' wall time (heartbeat in the state)."""
     import time as _time

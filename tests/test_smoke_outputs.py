@@ -91,6 +91,13 @@ def test_evaluation_metrics_and_byo(session_start):
     R = np.array(byo["R_m2c"])
     assert R.shape == (3, 3) and np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.linalg.det(R) > 0
     assert 0.0 <= byo["error_deg"] <= 180.0
+    # every demo photo answered from the mesh file, the first one being the drawn one
+    per_q = _per_query(d / "byo_per_query.csv", ("obj", "query_id", "err_deg", "rot_ok", "score", "model"))
+    assert len(per_q) == byo["n_queries"] >= 1 and set(per_q["obj"]) == {byo["object"]}
+    assert per_q["err_deg"].iloc[0] == pytest.approx(byo["error_deg"])
+    assert (per_q["rot_ok"] == (per_q["err_deg"] < 30.0)).all()
+    assert byo["rot_acc"] == pytest.approx(100 * per_q["rot_ok"].mean())
+    assert byo["ci95"][0] <= byo["rot_acc"] <= byo["ci95"][1]
 
 
 @pytest.mark.parametrize("nb", ["04_ablation_scales", "05_ablation_fusion", "08_components"])

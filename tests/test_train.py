@@ -222,6 +222,7 @@ def test_outputs_best_checkpoint_and_load(tmp_path):
     assert res.best_path.exists() and res.train_images_per_s > 0
     for h in res.history:
         assert set(h["val"]) == {"class_acc", "rot_acc", "median_err_deg"}
+        assert 0.0 < h["cpu_share"] < 2.0  # the epoch's CPU per wall second per thread (zoo speed rule)
     model, ck = load_model(res.best_path, device="cpu")
     assert not model.training and model.cfg == cfg.model
     assert ck["epoch"] == hist["best_epoch"]

@@ -29,6 +29,17 @@ def _recipes(tmp_path: Path, epochs: int, cache: str) -> dict:
     return zoo.recipes(path, cache_dir=cache, device="cpu")
 
 
+def test_zoo_speed_is_the_median_of_the_quiet_epochs():
+    hist = [{"epoch": 1, "images_per_s": 60.0, "cpu_share": 0.95}, {"epoch": 2, "images_per_s": 20.0, "cpu_share": 0.4},
+            {"epoch": 3, "images_per_s": 64.0, "cpu_share": 0.97}, {"epoch": 4, "images_per_s": 30.0, "cpu_share": 0.8}]
+    s = zoo.quiet_speed(hist)  # epochs 2 (shared) and 4 (paused for a while) are left out
+    assert s["train_images_per_s"] == 62.0 and s["train_speed_epochs"] == 2 and "0.97" in s["train_speed_rule"]
+    old = [{k: v for k, v in h.items() if k != "cpu_share"} for h in hist]  # histories from before cpu_share
+    assert zoo.quiet_speed(old)["train_images_per_s"] == 45.0 and zoo.quiet_speed(old)["train_speed_epochs"] == 4
+    assert zoo.quiet_speed([{"epoch": 1}], 7.0) == {"train_images_per_s": 7.0, "train_speed_epochs": 0,
+                                                    "train_speed_rule": zoo.quiet_speed([], 7.0)["train_speed_rule"]}
+
+
 def test_committed_zoo_files_match_load_and_reproduce_their_scores():
     models = zoo.entries()
     assert models, "models/zoo.yaml lists no model"

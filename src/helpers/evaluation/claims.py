@@ -99,6 +99,13 @@ def evaluation_claims(d: Path) -> list[dict]:
         label = held["model"].iloc[0] if "model" in held.columns else UNNAMED_MODEL
         out.append(record("held_out_rot_acc", f"Rota. Acc. on the held-out objects, never trained on ({label}; "
                           "retrieved among all objects, %)", None, *accuracy_ci(held), MEASURED))
+    byo = _read_csv(d / "byo_per_query.csv")
+    if byo is not None:  # one held-out object's photos answered from its mesh file alone (no classification)
+        label = byo["model"].iloc[0] if "model" in byo.columns else UNNAMED_MODEL
+        obj = byo["obj"].iloc[0]
+        out.append(record("byo_rot_acc", f"bring your own: share of {obj}'s {len(byo)} test photos answered within "
+                          f"30 deg from its mesh file alone ({label}; its references only, %)", None,
+                          *accuracy_ci(byo), MEASURED))
     return out + _baseline_claims(d, unseen)
 
 

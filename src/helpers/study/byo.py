@@ -8,12 +8,14 @@ the query and draws the retrieved reference beside the query.
 from __future__ import annotations
 
 import os
+import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
 import torch
 from tqdm.auto import tqdm
 
@@ -35,6 +37,7 @@ from ..core.rotations import geodesic_deg, haar_uniform
 from ..core.views import ObjectViews
 from ..data.meshes import ObjectMesh, load_mesh_file, normalise, set_color
 from ..data.render import render_reference
+from ..evaluation.metrics import rotation_errors_deg
 from ..search.features import FeatureCache, encode_batch, encode_views, model_fingerprint
 from . import zoo  # here, not at the top: the zoo pulls in training, which the library part never needs
 from .figures import _plt, save
@@ -266,6 +269,35 @@ def overlay_figure(res: ByoResult, path: str | os.PathLike) -> Path:
         a.set_xticks([])
         a.set_yticks([])
     return save(fig, path)
+
+
+def answer_views(model, mesh_path: str | os.PathLike, views: ObjectViews, n: int = 0,
+                 threshold_deg: float = 30.0, **kw) -> tuple[pd.DataFrame, list[ByoResult]]:
+    """Answer the first ``n`` (0: all) crops of ``views`` through the bring-your-own path, as a user
+    would: each crop is saved as a PNG (a temporary file) and given to :func:`estimate_rotation` with
+    the object's mesh file (``kw``: its options), so only that object's references compete and
+    nothing classifies. Errors are scored against the views' true ``R_m2c``, minimised over
+    ``views.symmetries`` (the benchmark's metric).
+
+    Returns (per-query table as :func:`helpers.evaluation.metrics.per_query_table` names its columns:
+    obj, query_id, class_ok (True: the object is given), err_deg, rot_ok (err_deg < ``threshold_deg``),
+    and score, reference;
+    one ByoResult per query, in order)."""
+    n = len(views) if n == 0 else min(int(n), len(views))
+    if n < 1:
+        raise ValueError(f"answer_views: {views.name} has no views to answer (n={n})")
+    results = []
+    with tempfile.TemporaryDirectory(prefix="byo-") as tmp:
+        for i in tqdm(range(n), desc=f"bring-your-own {views.name}", leave=False):
+            png = Path(tmp) / f"{views.name}-{i:04d}.png"
+            cv2.imwrite(str(png), cv2.cvtColor(np.ascontiguousarray(views.images[i]), cv2.COLOR_RGB2BGR))
+            results.append(estimate_rotation(model, mesh_path, png, **kw))
+    err = rotation_errors_deg(np.stack([r.R_m2c for r in results]), views.rotations[:n].astype(np.float64),
+                              views.symmetries)
+    table = pd.DataFrame({"obj": views.name, "query_id": np.arange(n), "class_ok": True, "err_deg": err,
+                          "rot_ok": err < threshold_deg, "score": [r.score for r in results],
+                          "reference": [r.ref_index for r in results]})
+    return table, results
 
 
 # ----------------------------------------------------------------------------- command line

@@ -133,7 +133,7 @@ _MIN_INT = {
     "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 1, "fps_k": 1,
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
-    "occluded_queries": 0, "eval_refs": 0,
+    "occluded_queries": 0, "eval_refs": 0, "byo_queries": 0,
     "n_seeds": 1, "test_queries": 0, "query": 0, "top_k": 1, "n_queries": 1,
 }
 _CHOICES = {
@@ -189,9 +189,9 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         _check_variants(notebook, P["variants"])
     if "seeded_variants" in P:
         _check_seeded(notebook, P["seeded_variants"], P.get("variants"))
-    if "test_queries" in P and P.get("n_test_queries") is not None and P["test_queries"] > P["n_test_queries"]:
-        raise _err(notebook, "test_queries", f"0 (all) or at most n_test_queries={P['n_test_queries']}",
-                   P["test_queries"])
+    for name in ("test_queries", "byo_queries"):
+        if name in P and P.get("n_test_queries") is not None and P[name] > P["n_test_queries"]:
+            raise _err(notebook, name, f"0 (all) or at most n_test_queries={P['n_test_queries']}", P[name])
     if "reference_counts" in P:
         rc, n = P["reference_counts"], P.get("n_references")
         if not rc or any(c < 1 for c in rc) or (n is not None and max(rc) > n):

@@ -187,6 +187,33 @@ def check_scores(model: OrientationNet, queries: np.ndarray, refs: np.ndarray) -
         return model.score(fq, fr).float().numpy()
 
 
+#: An epoch counts as quiet when its CPU share is at least this fraction of the run's highest.
+QUIET_SHARE = 0.9
+
+
+def quiet_speed(history: list[dict], fallback: float = float("nan")) -> dict[str, Any]:
+    """The training speed a zoo entry records: the median images/s over the run's quiet epochs,
+    those whose ``cpu_share`` is at least :data:`QUIET_SHARE` of the run's highest (epochs that
+    shared the cores or were paused would understate the machine). Histories written before
+    ``cpu_share`` existed: the median over all their epochs; none with a speed: ``fallback``.
+
+    Returns {"train_images_per_s", "train_speed_epochs" (how many epochs it is the median of),
+    "train_speed_rule"}."""
+    eps = [h for h in history if h.get("images_per_s")]
+    shares = [h["cpu_share"] for h in eps if h.get("cpu_share") is not None]
+    if shares and len(shares) == len(eps):
+        top = max(shares)
+        quiet = [h["images_per_s"] for h in eps if h["cpu_share"] >= QUIET_SHARE * top]
+        rule = f"median over epochs with cpu_share >= {QUIET_SHARE} x the run's highest ({top:.2f})"
+    else:
+        quiet = [h["images_per_s"] for h in eps]
+        rule = "median over all epochs (no cpu_share recorded)"
+    if not quiet:
+        return {"train_images_per_s": float(fallback), "train_speed_epochs": 0,
+                "train_speed_rule": "mean over the last training call's epochs (no per-epoch speeds)"}
+    return {"train_images_per_s": float(np.median(quiet)), "train_speed_epochs": len(quiet), "train_speed_rule": rule}
+
+
 def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
     """Write ``<name>.pt`` (float16 weights of the run's best.pt), its history, check views and
     its entry in ``zoo.yaml``; returns the weight file. The validation numbers are recomputed with
@@ -229,7 +256,7 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
         "precision": "+".join(sorted({h.get("precision", cfg["precision"]) for h in hist.get("history", [])}))
         or cfg["precision"],
         "git": sessions[0]["git"], "device": sessions[0]["device"], "sessions": sessions, "packages": package_versions(("torch", "numpy")),
-        "train_images_per_s": float(done.get("train_images_per_s", float("nan"))),
+        **quiet_speed(hist.get("history", []), float(done.get("train_images_per_s", float("nan")))),
         "train_seconds": float(sum(h.get("seconds", 0.0) for h in hist.get("history", []))),
         "val_recorded": {k: float(v) for k, v in (best["val"] or {}).items() if k != "per_object"},
         "val": {k: float(v) for k, v in val.items() if k != "per_object"},

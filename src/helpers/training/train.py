@@ -187,7 +187,9 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
             rotations other than the references', for the ``clean_steps`` curriculum.
 
     History entries: epoch (1-based), global_step, lr, train_loss, seconds,
-    images_per_s, val (None or validate() summary without per_object).
+    images_per_s, cpu_share (process CPU seconds / (seconds x torch threads): about 1
+    on cores of its own, lower when shared or paused), precision, val (None or
+    validate() summary without per_object).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -204,7 +206,11 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
         speeds = []
         for epoch in range(run.start_epoch, cfg.epochs):
             lr = run.optimizer.param_groups[0]["lr"]
+            cpu0 = time.process_time()
             losses, seconds = _train_epoch(run, cfg, epoch)
+            # CPU seconds of this process per wall second per thread: about 1 when the epoch had the
+            # threads' cores to itself, lower when it shared them or was paused (its speed is then not the machine's)
+            cpu_share = (time.process_time() - cpu0) / (seconds * torch.get_num_threads())
             speeds.append(run.steps * 3 * cfg.batch_size / seconds)
             if run.rank > 0:  # only the first process validates and writes; the others wait for its files
                 run.history.append({"epoch": epoch + 1, "global_step": run.global_step})
@@ -216,7 +222,8 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
                 val.pop("per_object")
             run.history.append({"epoch": epoch + 1, "global_step": run.global_step, "lr": float(lr),
                                 "train_loss": float(np.mean(losses)), "seconds": float(seconds),
-                                "images_per_s": float(speeds[-1]), "precision": cfg.precision, "val": val})
+                                "images_per_s": float(speeds[-1]), "cpu_share": round(cpu_share, 3),
+                                "precision": cfg.precision, "val": val})
             _save_epoch(run, cfg, epoch, val, do_val, out_dir)
         if run.rank == 0 and run.history:
             plot_history(run.history, out_dir / "history.png")
