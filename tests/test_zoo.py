@@ -40,6 +40,22 @@ def test_zoo_speed_is_the_median_of_the_quiet_epochs():
                                                     "train_speed_rule": zoo.quiet_speed([], 7.0)["train_speed_rule"]}
 
 
+def test_progress_tells_published_from_checkpointed_from_untrained(tmp_path):
+    path = tmp_path / "zoo.yaml"
+    path.write_text(yaml.safe_dump({**TINY, "models": {**TINY["models"], "tiny-wl": {"split": 1,
+                                                                                    "train": {"weighted_loss": False}}}}))
+    zdir = tmp_path / "models"
+    (zdir / "checkpoints").mkdir(parents=True)
+    (zdir / "zoo.yaml").write_text(yaml.safe_dump({"models": {"tiny": {"steps": 2, "val": {"rot_acc": 0.5}}}}))
+    torch.save({"global_step": 1}, zdir / "checkpoints" / "tiny-avg.last.pt")
+    rows = {r["name"]: r for r in zoo.progress(path, zdir)}
+    assert [rows[n]["state"] for n in ("tiny", "tiny-avg", "tiny-wl")] == ["published", "checkpoint", "untrained"]
+    assert [rows[n]["steps"] for n in ("tiny", "tiny-avg", "tiny-wl")] == [2, 1, 0]
+    assert rows["tiny"]["val"] == {"rot_acc": 0.5} and all(r["budget"] == 2 for r in rows.values())
+    rows = zoo.progress(path, tmp_path / "empty")  # nothing published yet
+    assert [r["state"] for r in rows] == ["untrained"] * 3
+
+
 def test_committed_zoo_files_match_load_and_reproduce_their_scores():
     models = zoo.entries()
     assert models, "models/zoo.yaml lists no model"

@@ -317,6 +317,24 @@ def entry(name: str, zoo_dir: Path = ZOO_DIR) -> dict:
     return zoo[name]
 
 
+def progress(path: str | Path = RECIPES, zoo_dir: Path = ZOO_DIR) -> list[dict]:
+    """Where each recipe of ``path`` stands in the committed zoo, in the recipes' order: one dict
+    {"name", "state" ("published" | "checkpoint": a committed unfinished run | "untrained"),
+    "steps" (done), "budget" (epochs x steps_per_epoch), "val" (the published seen-object validation)}."""
+    published = entries(zoo_dir) if (Path(zoo_dir) / "zoo.yaml").exists() else {}
+    out = []
+    for name, r in recipes(path, device="cpu").items():
+        row = {"name": name, "budget": r.train.epochs * r.train.steps_per_epoch, "steps": 0, "val": None,
+               "state": "untrained"}
+        ck = _checkpoint_path(name, Path(zoo_dir))
+        if name in published:
+            row.update(state="published", steps=int(published[name]["steps"]), val=published[name].get("val"))
+        elif ck.exists():
+            row.update(state="checkpoint", steps=int(read_checkpoint(ck, "cpu")["global_step"]))
+        out.append(row)
+    return out
+
+
 def verify(zoo_dir: Path = ZOO_DIR) -> list[str]:
     """Problems with the committed files (missing, or sha256 differing from zoo.yaml); [] if none."""
     bad = []
@@ -418,7 +436,7 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--device", default="auto")
     s = sub.add_parser("snapshot", help="commit-ready copy of an unfinished run's last.pt")
     s.add_argument("names", nargs="+")
-    sub.add_parser("list", help="the zoo's models and their validation numbers")
+    sub.add_parser("list", help="every recipe: published (with its validation), committed checkpoint or untrained")
     sub.add_parser("verify", help="check every committed model file against its sha256")
     a = ap.parse_args(argv)
     if a.cmd == "train":
@@ -432,8 +450,10 @@ def main(argv: list[str] | None = None) -> int:
         for name in a.names:
             print(snapshot(recipe(name)))
     elif a.cmd == "list":
-        for name, e in entries().items():
-            print(f"{name:14s} split {e['split']} steps {e['steps']} val {e['val']}")
+        for row in progress():
+            val = "" if not row["val"] else (f"; seen-object validation Rota. Acc. {100 * row['val']['rot_acc']:.1f} %, "
+                                             f"Class. Acc. {100 * row['val']['class_acc']:.1f} %")
+            print(f"{row['name']:14s} {row['state']:10s} {row['steps']:5d} / {row['budget']} steps{val}")
     elif a.cmd == "verify":
         bad = verify()
         for b in bad:
