@@ -79,6 +79,22 @@ def test_byo_panel_asks_for_both_files_before_running(explorer):
     assert "upload a mesh file and a crop image first" in answer.value
 
 
+def test_byo_panel_keeps_no_upload_files_after_answering(explorer, tmp_path, monkeypatch):
+    import datetime
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where the panel's temporary files go
+    panel = byo_panel(explorer.model, 4)
+    mesh_up, crop_up, _, button = panel.children[0].children
+    answer = panel.children[1]
+    upload = {"size": 4, "type": "", "last_modified": datetime.datetime(2026, 1, 1, tzinfo=datetime.timezone.utc)}
+    mesh_up.value = ({**upload, "name": "broken.obj", "content": memoryview(b"junk")},)
+    crop_up.value = ({**upload, "name": "crop.png", "content": memoryview(b"junk")},)
+    button.click()
+    assert "crop.png is not a readable image" in answer.value  # the file's own error, shown in the panel
+    assert list(tmp_path.iterdir()) == []
+
+
 def _explore_parameters(**over):
     P = declared_parameters(notebook_path("10_explore"))
     P.update(over)

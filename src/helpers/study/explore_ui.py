@@ -106,25 +106,28 @@ def byo_panel(model: Any, n_refs: int, render_size: int = 96, device: str = "aut
     for widget, cls in ((mesh_up, "byo-mesh"), (crop_up, "byo-crop"), (button, "byo-run"), (answer, "byo-answer"),
                         (image, "byo-overlay")):
         widget.add_class(cls)
-    tmp = Path(tempfile.mkdtemp(prefix="byo-upload-"))
 
     def run(_: Any) -> None:
         if not mesh_up.value or not crop_up.value:
             answer.value = "<span style='color:#b00'>upload a mesh file and a crop image first</span>"
             return
-        try:
-            paths = []
-            for up in (mesh_up, crop_up):
-                f = up.value[-1]
-                p = tmp / Path(f["name"]).name  # the upload's own name: its suffix tells trimesh/OpenCV the format
-                p.write_bytes(bytes(f["content"]))
-                paths.append(p)
-            answer.value = f"rendering {refs.value} references of {html.escape(paths[0].name)}..."
-            _, out = byo_answer(model, paths[0], paths[1], refs.value, tmp / "overlay.png", render_size, device, cache)
-            image.value = (tmp / "overlay.png").read_bytes()
-            answer.value = f"<pre>{html.escape(str(out))}</pre>"
-        except Exception as e:  # bad files: the same clear messages as the Python call, shown in the panel
-            answer.value = f"<span style='color:#b00'>{html.escape(type(e).__name__ + ': ' + str(e))}</span>"
+        # The uploads live as files for one answer only (the renders are cached by the mesh's sha256).
+        with tempfile.TemporaryDirectory(prefix="byo-upload-") as d:
+            tmp = Path(d)
+            try:
+                paths = []
+                for up in (mesh_up, crop_up):
+                    f = up.value[-1]
+                    p = tmp / Path(f["name"]).name  # the upload's own name: its suffix tells trimesh/OpenCV the format
+                    p.write_bytes(bytes(f["content"]))
+                    paths.append(p)
+                answer.value = f"rendering {refs.value} references of {html.escape(paths[0].name)}..."
+                _, out = byo_answer(model, paths[0], paths[1], refs.value, tmp / "overlay.png", render_size, device,
+                                    cache)
+                image.value = (tmp / "overlay.png").read_bytes()
+                answer.value = f"<pre>{html.escape(str(out))}</pre>"
+            except Exception as e:  # bad files: the same clear messages as the Python call, shown in the panel
+                answer.value = f"<span style='color:#b00'>{html.escape(type(e).__name__ + ': ' + str(e))}</span>"
 
     button.on_click(run)
     return w.VBox([w.HBox([mesh_up, crop_up, refs, button]), answer, image])
