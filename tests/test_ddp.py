@@ -142,7 +142,10 @@ def test_torchrun_launcher_trains_the_smoke_model_on_two_cpu_processes(tmp_path)
     import subprocess
     import sys
 
-    env = {**os.environ, "HELPERS_CACHE_DIR": str(tmp_path / "cache"), "OMP_NUM_THREADS": "1"}
+    # TMPDIR: the launcher's own log folder (torchelastic_*) stays inside this test's folder, not in /tmp
+    (tmp_path / "tmp").mkdir()
+    env = {**os.environ, "HELPERS_CACHE_DIR": str(tmp_path / "cache"), "OMP_NUM_THREADS": "1",
+           "TMPDIR": str(tmp_path / "tmp")}
     r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2",
                         f"--master_port={_free_port()}", "-m", "helpers.study.ddp_train", "--preset", "smoke"],
                        env=env, capture_output=True, text=True, timeout=900)
