@@ -276,8 +276,10 @@ def test_answer_views_feeds_each_photo_as_a_png_and_scores_it_with_the_object_sy
     assert table["score"].tolist() == [0.5, 1.5, 2.5] and [r.ref_index for r in results] == [0, 1, 2]
     seen.clear()
     assert len(byo.answer_views(None, "mesh.obj", views, n=2)[0]) == 2  # the first n photos only
-    with pytest.raises(ValueError, match="box has no views"):
+    with pytest.raises(ValueError, match="n expected 0"):
         byo.answer_views(None, "mesh.obj", views, n=-1)
+    with pytest.raises(ValueError, match="box has no views"):
+        byo.answer_views(None, "mesh.obj", views.subset(np.arange(0)))
 
 
 def test_time_of_an_interrupted_notebook_counts_in_its_timing(tmp_path, monkeypatch):

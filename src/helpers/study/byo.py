@@ -283,9 +283,11 @@ def answer_views(model, mesh_path: str | os.PathLike, views: ObjectViews, n: int
     obj, query_id, class_ok (True: the object is given), err_deg, rot_ok (err_deg < ``threshold_deg``),
     and score, reference;
     one ByoResult per query, in order)."""
+    if n < 0:
+        raise ValueError(f"answer_views: n expected 0 (all views) or a positive count, got {n}")
     n = len(views) if n == 0 else min(int(n), len(views))
     if n < 1:
-        raise ValueError(f"answer_views: {views.name} has no views to answer (n={n})")
+        raise ValueError(f"answer_views: {views.name} has no views to answer")
     results = []
     with tempfile.TemporaryDirectory(prefix="byo-") as tmp:
         for i in tqdm(range(n), desc=f"bring-your-own {views.name}", leave=False):
