@@ -250,9 +250,12 @@ def test_second_byo_call_renders_and_encodes_nothing(tmp_path, manifest, monkeyp
         byo.estimate_rotation(other, entry.mesh.resolve(), qp, **kw)
 
 
-def test_answer_views_feeds_each_photo_as_a_png_and_scores_it_with_the_object_symmetries(monkeypatch):
-    """Notebook 03's bring-your-own demo: every photo reaches estimate_rotation as a file holding exactly
-    its pixels, and errors use the benchmark's metric (an answer equal up to a symmetry is right)."""
+def test_answer_views_reads_each_photo_back_as_a_png_and_scores_it_with_the_object_symmetries(monkeypatch):
+    """Notebook 03's bring-your-own check: the references are built once, every photo reaches the
+    search as the user's PNG would (pixels unchanged), and errors use the benchmark's metric (an
+    answer equal up to a symmetry is right)."""
+    from types import SimpleNamespace
+
     from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(4)
@@ -261,25 +264,27 @@ def test_answer_views_feeds_each_photo_as_a_png_and_scores_it_with_the_object_sy
     views = ObjectViews("box", rng.integers(0, 255, (3, 16, 16, 3), dtype=np.uint8), R_gt.astype(np.float32),
                         kind="query", symmetries=np.stack([np.eye(3), flip]))
     answers = [R_gt[0], R_gt[1] @ flip, R_gt[2] @ Rotation.from_euler("x", 90, degrees=True).as_matrix()]
-    seen = []
+    seen, built = [], []
 
-    def fake(model, mesh, png, **kw):
-        seen.append(cv2.cvtColor(cv2.imread(str(png)), cv2.COLOR_BGR2RGB))
+    def fake_answer(model, rs, query, n_alternatives=4):
+        seen.append(query)
         i = len(seen) - 1
-        return byo.ByoResult(answers[i], 0.5 + i, i, seen[-1], seen[-1])
+        return byo.ByoResult(answers[i], 0.5 + i, i, query, query)
 
-    monkeypatch.setattr(byo, "estimate_rotation", fake)
-    table, results = byo.answer_views(None, "mesh.obj", views, n=0, n_refs=8)
-    assert all(np.array_equal(a, b) for a, b in zip(seen, views.images))
+    monkeypatch.setattr(byo, "reference_set", lambda model, mesh, **kw: built.append(kw) or "refs")
+    monkeypatch.setattr(byo, "answer", fake_answer)
+    model = SimpleNamespace(cfg=SimpleNamespace(image_size=16))
+    table, results = byo.answer_views(model, "mesh.obj", views, n=0, n_refs=8)
+    assert built == [{"n_refs": 8}] and all(np.array_equal(a, b) for a, b in zip(seen, views.images))
     assert np.allclose(table["err_deg"], [0.0, 0.0, 90.0], atol=0.05)  # float32 truths
     assert table["rot_ok"].tolist() == [True, True, False] and table["class_ok"].all()
     assert table["score"].tolist() == [0.5, 1.5, 2.5] and [r.ref_index for r in results] == [0, 1, 2]
     seen.clear()
-    assert len(byo.answer_views(None, "mesh.obj", views, n=2)[0]) == 2  # the first n photos only
+    assert len(byo.answer_views(model, "mesh.obj", views, n=2)[0]) == 2  # the first n photos only
     with pytest.raises(ValueError, match="n expected 0"):
-        byo.answer_views(None, "mesh.obj", views, n=-1)
+        byo.answer_views(model, "mesh.obj", views, n=-1)
     with pytest.raises(ValueError, match="box has no views"):
-        byo.answer_views(None, "mesh.obj", views.subset(np.arange(0)))
+        byo.answer_views(model, "mesh.obj", views.subset(np.arange(0)))
 
 
 def test_time_of_an_interrupted_notebook_counts_in_its_timing(tmp_path, monkeypatch):

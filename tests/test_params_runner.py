@@ -71,6 +71,20 @@ def test_kernel_namespace_check():
         check_parameters("02_train", ns)
 
 
+def test_byo_queries_fit_the_test_queries_evaluated():
+    from helpers.study.parameters import check_values
+
+    P = {**declared_parameters(notebook_path("03_evaluate")), "n_test_queries": 10}
+    check_values("03_evaluate", {**P, "test_queries": 0, "byo_queries": 10})
+    check_values("03_evaluate", {**P, "test_queries": 6, "byo_queries": 6})
+    with pytest.raises(ParameterError, match=r"'byo_queries' expects 0 \(all\) or at most test_queries=6"):
+        check_values("03_evaluate", {**P, "test_queries": 6, "byo_queries": 7})
+    with pytest.raises(ParameterError, match=r"'byo_queries' expects 0 \(all\) or at most n_test_queries=10"):
+        check_values("03_evaluate", {**P, "byo_queries": 11})
+    with pytest.raises(ParameterError, match=r"'byo_queries' expects an int >= 0"):
+        check_values("03_evaluate", {**P, "byo_queries": -1})
+
+
 def test_byo_model_must_be_a_zoo_model_of_the_crop_size():
     from helpers.study.parameters import check_values
 

@@ -82,6 +82,20 @@ def test_tables_format_numbers_by_magnitude():
     assert "512" in lines[3] and "0.610" in lines[3]
 
 
+def test_byo_line_reads_both_layouts_of_byo_json():
+    from helpers.study.report import _byo_line
+
+    old = {"object": "racecar", "model": "all", "n_refs": 512, "error_deg": 176.04}  # one photo, before byo_queries
+    assert _byo_line(old, None) == ("Bring-your-own-object demo (all): `racecar` from its mesh file, 512 references, "
+                                    "error 176.0°.")
+    new = {**old, "n_queries": 40, "threshold_deg": 30.0, "rot_acc": 25.0, "ci95": [12.5, 40.0],
+           "median_err_deg": 151.26}
+    line = _byo_line(new, None)
+    assert "25.0 % [12.5, 40.0] of its 40 test photos within 30°" in line
+    assert "median error 151.3°" in line and line.endswith("error 176.0°.")
+    assert "[12.5, 40.0]" in _byo_line({k: v for k, v in new.items() if k != "ci95"}, {"ci95": [12.5, 40.0]})
+
+
 def test_report_shows_seed_spread_and_a_reexecution(tmp_path):
     d = tmp_path / "z" / "05_ablation_fusion"
     d.mkdir(parents=True)

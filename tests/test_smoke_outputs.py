@@ -95,9 +95,10 @@ def test_evaluation_metrics_and_byo(session_start):
     per_q = _per_query(d / "byo_per_query.csv", ("obj", "query_id", "err_deg", "rot_ok", "score", "model"))
     assert len(per_q) == byo["n_queries"] >= 1 and set(per_q["obj"]) == {byo["object"]}
     assert per_q["err_deg"].iloc[0] == pytest.approx(byo["error_deg"])
-    assert (per_q["rot_ok"] == (per_q["err_deg"] < 30.0)).all()
+    assert (per_q["rot_ok"] == (per_q["err_deg"] < byo["threshold_deg"])).all() and byo["threshold_deg"] == 30.0
     assert byo["rot_acc"] == pytest.approx(100 * per_q["rot_ok"].mean())
     assert byo["ci95"][0] <= byo["rot_acc"] <= byo["ci95"][1]
+    assert byo["median_err_deg"] == pytest.approx(per_q["err_deg"].median()) and set(per_q["model"]) == {byo["model"]}
 
 
 @pytest.mark.parametrize("nb", ["04_ablation_scales", "05_ablation_fusion", "08_components"])

@@ -1,6 +1,7 @@
 """The model zoo: committed files match their sha256, load, and reproduce their recorded scores;
 a recipe trains, resumes from a committed checkpoint, publishes and is refused when damaged."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -36,8 +37,22 @@ def test_zoo_speed_is_the_median_of_the_quiet_epochs():
     assert s["train_images_per_s"] == 62.0 and s["train_speed_epochs"] == 2 and "0.97" in s["train_speed_rule"]
     old = [{k: v for k, v in h.items() if k != "cpu_share"} for h in hist]  # histories from before cpu_share
     assert zoo.quiet_speed(old)["train_images_per_s"] == 45.0 and zoo.quiet_speed(old)["train_speed_epochs"] == 4
+    mixed = zoo.quiet_speed(old[:2] + hist[2:])  # resumed from an older run: not every epoch has a share
+    assert mixed["train_speed_epochs"] == 4 and "2 of 4" in mixed["train_speed_rule"]
     assert zoo.quiet_speed([{"epoch": 1}], 7.0) == {"train_images_per_s": 7.0, "train_speed_epochs": 0,
                                                     "train_speed_rule": zoo.quiet_speed([], 7.0)["train_speed_rule"]}
+
+
+def test_refresh_speeds_rewrites_each_entry_from_its_history(tmp_path):
+    hist = [{"epoch": 1, "images_per_s": 60.0, "cpu_share": 0.95}, {"epoch": 2, "images_per_s": 20.0, "cpu_share": 0.4}]
+    (tmp_path / "a.history.json").write_text(json.dumps({"history": hist}))
+    (tmp_path / "zoo.yaml").write_text(yaml.safe_dump({"models": {"a": {
+        "file": "a.pt", "history": "a.history.json", "train_images_per_s": 40.0, "train_seconds": 9.0}}}))
+    assert zoo.refresh_speeds(tmp_path) == {"a": 60.0}
+    e = zoo.entries(tmp_path)["a"]
+    assert list(e) == ["file", "history", "train_images_per_s", "train_speed_epochs", "train_speed_rule",
+                       "train_seconds"]
+    assert e["train_speed_epochs"] == 1 and zoo.refresh_speeds(tmp_path) == {"a": 60.0}  # idempotent
 
 
 def test_progress_tells_published_from_checkpointed_from_untrained(tmp_path):

@@ -71,7 +71,8 @@ def _diff_record(id_: str, text: str, paper_value: float | None, c: dict, sign: 
 
 
 def evaluation_claims(d: Path) -> list[dict]:
-    """Claims of notebook 03 from its per-query tables (``per_query_*.csv``)."""
+    """Claims of notebook 03 from its per-query tables (``per_query_*.csv``, and ``byo_per_query.csv``:
+    the bring-your-own check)."""
     ours = _read_csv(d / "per_query_ours.csv")
     if ours is None:
         return []
@@ -102,10 +103,10 @@ def evaluation_claims(d: Path) -> list[dict]:
     byo = _read_csv(d / "byo_per_query.csv")
     if byo is not None:  # one held-out object's photos answered from its mesh file alone (no classification)
         label = byo["model"].iloc[0] if "model" in byo.columns else UNNAMED_MODEL
-        obj = byo["obj"].iloc[0]
-        out.append(record("byo_rot_acc", f"bring your own: share of {obj}'s {len(byo)} test photos answered within "
-                          f"30 deg from its mesh file alone ({label}; its references only, %)", None,
-                          *accuracy_ci(byo), MEASURED))
+        threshold = (_load(d / "byo.json") or {}).get("threshold_deg", 30.0)
+        out.append(record("byo_rot_acc", f"bring your own: share of {byo['obj'].iloc[0]}'s {len(byo)} test photos "
+                          f"answered within {threshold:g} deg from its mesh file alone ({label}; its references "
+                          "only, %)", None, *accuracy_ci(byo), MEASURED))
     return out + _baseline_claims(d, unseen)
 
 

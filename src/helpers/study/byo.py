@@ -205,20 +205,30 @@ def _refs_dir(name: str, key: str, cache: str | os.PathLike | None) -> Path:
     return cache_dir(cache) / "byo" / f"{name}-{key}"
 
 
-def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.PathLike, n_refs: int = 1024,
-                      render_size: int = 160, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
-                      device: str = "auto", cache: str | os.PathLike | None = None,
-                      alpha: str = "composite", n_alternatives: int = 4) -> ByoResult:
-    """Estimate the rotation of the object in ``query_path`` from its mesh ``mesh_path``.
+@dataclass
+class ReferenceSet:
+    """A mesh's rendered references and their features under one model (:func:`reference_set`).
 
-    The references (renders) and their features are cached under ``<cache>/byo`` and
-    ``<cache>/features``, keyed by the mesh file's sha256, the reference set (count,
-    seed, render settings, colour) and the model's weights, so a second query of the
-    same object with the same model costs only the query's encoding and the search.
-    ``alpha``: how a transparent query crop is read (see :func:`load_query_image`).
+    Attributes:
+        refs: (N, S, S, 3) uint8 renders.
+        R: (N, 3, 3) their ``R_m2c``.
+        feats: (N, C, L) float16 reference features (a read-only memmap of the feature cache).
+        device: where the queries are encoded and scored.
     """
+
+    refs: np.ndarray
+    R: np.ndarray
+    feats: np.ndarray
+    device: torch.device
+
+
+def reference_set(model, mesh_path: str | os.PathLike, n_refs: int = 1024, render_size: int = 160,
+                  color: tuple[float, float, float] | None = (0.7, 0.7, 0.7), device: str = "auto",
+                  cache: str | os.PathLike | None = None) -> ReferenceSet:
+    """Render ``n_refs`` references of the mesh file and encode them with ``model``, or read both from
+    the cache (``<cache>/byo`` and ``<cache>/features``, keyed by the mesh file's sha256, the reference
+    set (count, seed, render settings, colour) and the model's weights)."""
     size = int(model.cfg.image_size) if hasattr(model, "cfg") else 128
-    query = load_query_image(query_path, size, alpha)
     mesh_path = Path(mesh_path)
     if not mesh_path.is_file():
         raise FileNotFoundError(f"mesh file {mesh_path} does not exist")
@@ -241,19 +251,41 @@ def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.
         refs, R = render_custom_references(obj, n_refs, cfg, cache=cache)
         views = ObjectViews(mesh_path.stem, refs, R, None, "reference")
         feats = fc.get_or_build(model, mkey, views, f"byo-{key}", batch=encode_batch(dev), device=dev)
-    qf = next(encode_views(model, query[None], device=dev))
+    return ReferenceSet(refs, R, feats, dev)
+
+
+def answer(model, rs: ReferenceSet, query: np.ndarray, n_alternatives: int = 4) -> ByoResult:
+    """Retrieve one (S, S, 3) uint8 query crop (as :func:`load_query_image` returns it) among the
+    references of ``rs``: the best reference's rotation and the next ``n_alternatives``."""
+    qf = next(encode_views(model, query[None], device=rs.device))
     model.eval()
     with torch.inference_mode(), warnings.catch_warnings():
         # The cached features are a read-only memmap; score() only reads them (chunk by chunk).
         warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
-        s = model.score(qf.to(dev), torch.from_numpy(np.asarray(feats)))[0].float().cpu().numpy()
+        s = model.score(qf.to(rs.device), torch.from_numpy(np.asarray(rs.feats)))[0].float().cpu().numpy()
     order = np.argsort(-s, kind="stable")
     k = int(order[0])
-    best = R[k].astype(np.float64)
-    alts = [{"index": int(j), "score": float(s[j]), "R_m2c": R[j].astype(np.float64).tolist(),
-             "deg_from_best": float(geodesic_deg(best, R[j].astype(np.float64)))}
+    best = rs.R[k].astype(np.float64)
+    alts = [{"index": int(j), "score": float(s[j]), "R_m2c": rs.R[j].astype(np.float64).tolist(),
+             "deg_from_best": float(geodesic_deg(best, rs.R[j].astype(np.float64)))}
             for j in order[1:1 + n_alternatives]]
-    return ByoResult(best, float(s[k]), k, np.array(refs[k]), query, alts)
+    return ByoResult(best, float(s[k]), k, np.array(rs.refs[k]), query, alts)
+
+
+def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.PathLike, n_refs: int = 1024,
+                      render_size: int = 160, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
+                      device: str = "auto", cache: str | os.PathLike | None = None,
+                      alpha: str = "composite", n_alternatives: int = 4) -> ByoResult:
+    """Estimate the rotation of the object in ``query_path`` from its mesh ``mesh_path``.
+
+    The references and their features come from :func:`reference_set` (cached), so a second
+    query of the same object with the same model costs only the query's encoding and the search.
+    ``alpha``: how a transparent query crop is read (see :func:`load_query_image`).
+    """
+    size = int(model.cfg.image_size) if hasattr(model, "cfg") else 128
+    query = load_query_image(query_path, size, alpha)  # a bad crop is reported before any rendering
+    rs = reference_set(model, mesh_path, n_refs, render_size, color, device, cache)
+    return answer(model, rs, query, n_alternatives)
 
 
 def overlay_figure(res: ByoResult, path: str | os.PathLike) -> Path:
@@ -272,28 +304,30 @@ def overlay_figure(res: ByoResult, path: str | os.PathLike) -> Path:
 
 
 def answer_views(model, mesh_path: str | os.PathLike, views: ObjectViews, n: int = 0,
-                 threshold_deg: float = 30.0, **kw) -> tuple[pd.DataFrame, list[ByoResult]]:
+                 threshold_deg: float = 30.0, alpha: str = "composite", **kw) -> tuple[pd.DataFrame, list[ByoResult]]:
     """Answer the first ``n`` (0: all) crops of ``views`` through the bring-your-own path, as a user
-    would: each crop is saved as a PNG (a temporary file) and given to :func:`estimate_rotation` with
-    the object's mesh file (``kw``: its options), so only that object's references compete and
-    nothing classifies. Errors are scored against the views' true ``R_m2c``, minimised over
+    would: each crop is saved as a PNG (a temporary file), read back with :func:`load_query_image`
+    and retrieved among the references of the object's mesh file (:func:`reference_set`, built or
+    read once; ``kw``: its options), so only that object's references compete and nothing
+    classifies. Errors are scored against the views' true ``R_m2c``, minimised over
     ``views.symmetries`` (the benchmark's metric).
 
     Returns (per-query table as :func:`helpers.evaluation.metrics.per_query_table` names its columns:
     obj, query_id, class_ok (True: the object is given), err_deg, rot_ok (err_deg < ``threshold_deg``),
-    and score, reference;
-    one ByoResult per query, in order)."""
+    and score, reference; one ByoResult per query, in order)."""
     if n < 0:
         raise ValueError(f"answer_views: n expected 0 (all views) or a positive count, got {n}")
     n = len(views) if n == 0 else min(int(n), len(views))
     if n < 1:
         raise ValueError(f"answer_views: {views.name} has no views to answer")
+    size = int(model.cfg.image_size) if hasattr(model, "cfg") else 128
+    rs = reference_set(model, mesh_path, **kw)
     results = []
     with tempfile.TemporaryDirectory(prefix="byo-") as tmp:
         for i in tqdm(range(n), desc=f"bring-your-own {views.name}", leave=False):
             png = Path(tmp) / f"{views.name}-{i:04d}.png"
             cv2.imwrite(str(png), cv2.cvtColor(np.ascontiguousarray(views.images[i]), cv2.COLOR_RGB2BGR))
-            results.append(estimate_rotation(model, mesh_path, png, **kw))
+            results.append(answer(model, rs, load_query_image(png, size, alpha)))
     err = rotation_errors_deg(np.stack([r.R_m2c for r in results]), views.rotations[:n].astype(np.float64),
                               views.symmetries)
     table = pd.DataFrame({"obj": views.name, "query_id": np.arange(n), "class_ok": True, "err_deg": err,

@@ -189,9 +189,14 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         _check_variants(notebook, P["variants"])
     if "seeded_variants" in P:
         _check_seeded(notebook, P["seeded_variants"], P.get("variants"))
-    for name in ("test_queries", "byo_queries"):
-        if name in P and P.get("n_test_queries") is not None and P[name] > P["n_test_queries"]:
-            raise _err(notebook, name, f"0 (all) or at most n_test_queries={P['n_test_queries']}", P[name])
+    if "test_queries" in P and P.get("n_test_queries") is not None and P["test_queries"] > P["n_test_queries"]:
+        raise _err(notebook, "test_queries", f"0 (all) or at most n_test_queries={P['n_test_queries']}",
+                   P["test_queries"])
+    if "byo_queries" in P and P.get("n_test_queries") is not None:  # 03: the photos come from the capped test set
+        cap, what = (P["test_queries"], "test_queries") if P.get("test_queries") else (P["n_test_queries"],
+                                                                                        "n_test_queries")
+        if P["byo_queries"] > cap:
+            raise _err(notebook, "byo_queries", f"0 (all) or at most {what}={cap}", P["byo_queries"])
     if "reference_counts" in P:
         rc, n = P["reference_counts"], P.get("n_references")
         if not rc or any(c < 1 for c in rc) or (n is not None and max(rc) > n):

@@ -75,9 +75,11 @@ def _byo_line(byo: dict, claim: dict | None) -> str:
             f"{byo['n_refs']} references")
     if "n_queries" not in byo:
         return f"{head}, error {_fmt(byo['error_deg'])}°."
-    ci = "" if claim is None or claim["ci95"] is None else f" [{claim['ci95'][0]:.1f}, {claim['ci95'][1]:.1f}]"
-    return (f"{head}: {_fmt(byo['rot_acc'])} %{ci} of its {byo['n_queries']} test photos within 30°, median error "
-            f"{_fmt(byo['median_err_deg'])}°; the photo drawn below: error {_fmt(byo['error_deg'])}°.")
+    ci = byo.get("ci95") or (claim or {}).get("ci95")
+    ci = "" if not ci else f" [{ci[0]:.1f}, {ci[1]:.1f}]"
+    return (f"{head}: {_fmt(byo['rot_acc'])} %{ci} of its {byo['n_queries']} test photos within "
+            f"{_fmt(byo.get('threshold_deg', 30.0), 0)}°, median error {_fmt(byo['median_err_deg'])}°; the photo "
+            f"drawn below: error {_fmt(byo['error_deg'])}°.")
 
 
 def _fmt(x: Any, nd: int = 1) -> str:

@@ -207,10 +207,10 @@ def quiet_speed(history: list[dict], fallback: float = float("nan")) -> dict[str
         rule = f"median over epochs with cpu_share >= {QUIET_SHARE} x the run's highest ({top:.2f})"
     else:
         quiet = [h["images_per_s"] for h in eps]
-        rule = "median over all epochs (no cpu_share recorded)"
+        rule = f"median over all epochs (cpu_share recorded for {len(shares)} of {len(eps)})"
     if not quiet:
         return {"train_images_per_s": float(fallback), "train_speed_epochs": 0,
-                "train_speed_rule": "mean over the last training call's epochs (no per-epoch speeds)"}
+                "train_speed_rule": "no per-epoch speeds: the training call's own figure"}
     return {"train_images_per_s": float(np.median(quiet)), "train_speed_epochs": len(quiet), "train_speed_rule": rule}
 
 
@@ -278,6 +278,24 @@ def _write_entry(name: str, entry: dict, zoo_dir: Path) -> None:
                                                  sort_keys=False))
 
 
+def refresh_speeds(zoo_dir: Path = ZOO_DIR) -> dict[str, float]:
+    """Rewrite every zoo.yaml entry's training speed with :func:`quiet_speed` from its committed history
+    (entries published before the rule kept the mean of their last training call). Returns name ->
+    images/s now recorded."""
+    out = {}
+    for name, e in entries(zoo_dir).items():
+        hist = read_json(Path(zoo_dir) / e["history"]).get("history", [])
+        speed = quiet_speed(hist, e.get("train_images_per_s", float("nan")))
+        new = {}
+        for k, v in e.items():  # the speed fields stay together, where train_images_per_s was
+            if k in ("train_speed_epochs", "train_speed_rule"):
+                continue
+            new.update(speed if k == "train_images_per_s" else {k: v})
+        _write_entry(name, new, Path(zoo_dir))
+        out[name] = speed["train_images_per_s"]
+    return out
+
+
 class _PlainDumper(yaml.SafeDumper):
     """Writes repeated values out in full (no &id001 anchors: zoo.yaml is read by people too)."""
 
@@ -320,12 +338,14 @@ def entry(name: str, zoo_dir: Path = ZOO_DIR) -> dict:
 def progress(path: str | Path = RECIPES, zoo_dir: Path = ZOO_DIR) -> list[dict]:
     """Where each recipe of ``path`` stands in the committed zoo, in the recipes' order: one dict
     {"name", "state" ("published" | "checkpoint": a committed unfinished run | "untrained"),
-    "steps" (done), "budget" (epochs x steps_per_epoch), "val" (the published seen-object validation)}."""
+    "steps" (done), "budget" (epochs x steps_per_epoch; None for one pass per epoch), "val" (the published
+    seen-object validation)}."""
     published = entries(zoo_dir) if (Path(zoo_dir) / "zoo.yaml").exists() else {}
     out = []
     for name, r in recipes(path, device="cpu").items():
-        row = {"name": name, "budget": r.train.epochs * r.train.steps_per_epoch, "steps": 0, "val": None,
-               "state": "untrained"}
+        # steps_per_epoch 0/None means one pass over the training queries: no fixed count here
+        budget = r.train.epochs * r.train.steps_per_epoch if r.train.steps_per_epoch else None
+        row = {"name": name, "budget": budget, "steps": 0, "val": None, "state": "untrained"}
         ck = _checkpoint_path(name, Path(zoo_dir))
         if name in published:
             row.update(state="published", steps=int(published[name]["steps"]), val=published[name].get("val"))
@@ -425,7 +445,8 @@ def zoo_curve(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR) -> tu
 # ----------------------------------------------------------------------------- command line
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m helpers.study.zoo train NAME [NAME ...] [--publish]`` | ``snapshot NAME`` | ``list`` | ``verify``."""
+    """``python -m helpers.study.zoo train NAME [NAME ...] [--publish]`` | ``snapshot NAME`` | ``list`` | ``verify``
+    | ``speeds``."""
     import argparse
 
     ap = argparse.ArgumentParser(prog="python -m helpers.study.zoo", description=main.__doc__)
@@ -438,6 +459,7 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("names", nargs="+")
     sub.add_parser("list", help="every recipe: published (with its validation), committed checkpoint or untrained")
     sub.add_parser("verify", help="check every committed model file against its sha256")
+    sub.add_parser("speeds", help="rewrite each entry's images/s from its history (median over quiet epochs)")
     a = ap.parse_args(argv)
     if a.cmd == "train":
         for name in a.names:
@@ -453,7 +475,10 @@ def main(argv: list[str] | None = None) -> int:
         for row in progress():
             val = "" if not row["val"] else (f"; seen-object validation Rota. Acc. {100 * row['val']['rot_acc']:.1f} %, "
                                              f"Class. Acc. {100 * row['val']['class_acc']:.1f} %")
-            print(f"{row['name']:14s} {row['state']:10s} {row['steps']:5d} / {row['budget']} steps{val}")
+            print(f"{row['name']:14s} {row['state']:10s} {row['steps']:5d} / {row['budget'] or '?'} steps{val}")
+    elif a.cmd == "speeds":
+        for name, v in refresh_speeds().items():
+            print(f"{name:14s} {v:.1f} images/s")
     elif a.cmd == "verify":
         bad = verify()
         for b in bad:
