@@ -69,9 +69,12 @@ def test_two_gloo_processes_train_like_one(tmp_path):
     lb = [h["train_loss"] for h in b["history"]]
     assert np.allclose(la, lb, atol=TOL)
     # Weights: Adam turns float noise in a (near-)zero gradient into a step of up to lr (m / sqrt(v) ~ +-1),
-    # so the stated tolerance is per weight at most lr per step, with almost all weights far closer.
+    # so the tolerance is per weight at most lr per step. The median says the bulk agrees: processes that did not
+    # synchronise would differ by about lr per step (1e-3) in most weights; float noise leaves them far closer
+    # (how close depends on the CPU's kernels: medians of 2e-6 in one CI run, 6e-9 on a 2-core AVX2 VM), so the
+    # bound is 5 % of one step.
     diffs = torch.cat([(a["model"][k] - b["model"][k]).abs().flatten() for k in a["model"]])
-    assert float(diffs.max()) <= 1e-3 * 4 and float(diffs.median()) < 1e-7, (float(diffs.max()), float(diffs.median()))
+    assert float(diffs.max()) <= 1e-3 * 4 and float(diffs.median()) < 5e-5, (float(diffs.max()), float(diffs.median()))
     # Only the first process wrote: one run folder, with its history and best.pt.
     assert (tmp_path / "ddp" / "best.pt").exists() and (tmp_path / "ddp" / "history.json").exists()
 

@@ -124,7 +124,7 @@ def test_smoke_preset_is_deterministic(tmp_path):
                                                             "cache_dir": str(tmp_path / f"cache{k}")})
         hist = json.loads((out / "history.json").read_text())
         for h in hist["history"]:
-            for t in ("seconds", "images_per_s"):
+            for t in ("seconds", "images_per_s", "cpu_share"):  # timings: they vary run to run
                 h.pop(t)
         table = (out / "unseen_per_object.csv").read_text()
         m = json.loads((out / "train_metrics.json").read_text())
