@@ -223,7 +223,7 @@ def log(msg: str) -> None:
 MEASURED_MODULES = ("net/model.py", "core/configs.py", "net/fusion_kernel.py", "net/fusion_kernel.cpp",
                     "search/retrieval.py", "search/bank.py", "search/fps.py", "search/features.py",
                     "data/datasets.py", "data/render.py", "data/gl.py", "core/rotations.py", "training/losses.py",
-                    "training/train.py", "training/augment.py", "core/allocator.py")
+                    "training/train.py", "training/augment.py")
 
 
 def source_hashes() -> dict:

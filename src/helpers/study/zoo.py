@@ -24,7 +24,6 @@ import numpy as np
 import torch
 import yaml
 
-from ..core.allocator import keep_freed_memory
 from ..core.configs import DataConfig, ModelConfig, TrainConfig
 from ..core.device import resolve_device
 from ..core.fileio import atomic_write_bytes, atomic_write_json, atomic_write_text, read_json, sha256_file
@@ -97,12 +96,12 @@ def _checkpoint_path(name: str, zoo_dir: Path = ZOO_DIR) -> Path:
 
 
 def _machine(device: str) -> dict:
-    """Where a model trains: torch's device summary, the CPU model, its bf16 support and the malloc setting."""
+    """Where a model trains: torch's device summary, the CPU model and its bf16 support."""
     model = next((ln.split(":", 1)[1].strip() for ln in _cpuinfo_lines() if ln.startswith("model name")), None)
     info = device_info(device)
     kernel = info.pop("fusion_kernel", None)  # its build folder is a machine path: keep the verdict only
     info["fusion_kernel"] = None if kernel is None else bool(kernel.get("available"))
-    return {**info, "cpu_model": model, **describe(resolve_device(device)), "allocator": keep_freed_memory()}
+    return {**info, "cpu_model": model, **describe(resolve_device(device))}
 
 
 def _cpuinfo_lines() -> list[str]:

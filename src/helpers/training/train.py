@@ -31,7 +31,6 @@ import torch
 from torch.nn.parallel import DistributedDataParallel
 from tqdm.auto import tqdm
 
-from ..core.allocator import keep_freed_memory
 from ..core.configs import ModelConfig, TrainConfig
 from ..core.device import resolve_device
 from ..core.fileio import DamagedEntry, atomic_write_bytes, atomic_write_text
@@ -189,8 +188,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
 
     History entries: epoch (1-based), global_step, lr, train_loss, seconds,
     images_per_s, cpu_share (process CPU seconds / (seconds x torch threads): about 1
-    on cores of its own, lower when shared or paused), precision, keep_freed_memory
-    (whether glibc kept freed memory, :mod:`helpers.core.allocator`), val (None or
+    on cores of its own, lower when shared or paused), precision, val (None or
     validate() summary without per_object).
     """
     out_dir = Path(out_dir)
@@ -198,7 +196,6 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
     cfg = cfg.resolved()
     names = _check_inputs(cfg, train_refs, train_queries, val_refs, val_queries)
     do_val = any(len(v) for v in val_queries.values())
-    alloc = keep_freed_memory()  # process-wide: freed activations stay mapped for the next step (see allocator)
     old_threads = torch.get_num_threads()
     if cfg.num_threads is not None:
         torch.set_num_threads(cfg.num_threads)
@@ -226,8 +223,7 @@ def train(cfg: TrainConfig, train_refs: dict[str, ObjectViews], train_queries: d
             run.history.append({"epoch": epoch + 1, "global_step": run.global_step, "lr": float(lr),
                                 "train_loss": float(np.mean(losses)), "seconds": float(seconds),
                                 "images_per_s": float(speeds[-1]), "cpu_share": round(cpu_share, 3),
-                                "precision": cfg.precision,
-                                "keep_freed_memory": alloc["keep_freed_memory"], "val": val})
+                                "precision": cfg.precision, "val": val})
             _save_epoch(run, cfg, epoch, val, do_val, out_dir)
         if run.rank == 0 and run.history:
             plot_history(run.history, out_dir / "history.png")
