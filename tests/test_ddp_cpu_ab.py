@@ -23,9 +23,12 @@ def test_ddp_cpu_ab_runs_and_compares(tmp_path):
     a, b = res["runs"]["A"][0], res["runs"]["B"][0]
     assert a["global_step"] == b["global_step"] == 2
     assert (a["processes"], a["threads_per_process"], b["processes"], b["threads_per_process"]) == (1, 2, 2, 1)
-    # Same global batch and data: the two trainings differ only by the order of float sums.
+    # Same global batch and data: the two trainings differ only by the order of float sums. Adam can turn that
+    # noise into up to lr (1e-3) per step in a weight whose gradient is near zero, and how much noise there is
+    # depends on the CPU's kernels (see tests/test_ddp.py), so the median bound is 5 % of one step: trainings
+    # that did not synchronise would differ by about a step in most weights.
     assert res["loss_per_epoch_max_abs_diff_A_vs_B"] < 1e-4
-    assert res["weights_median_abs_diff_A_vs_B"] < 1e-5
+    assert res["weights_median_abs_diff_A_vs_B"] < 5e-5, res["weights_median_abs_diff_A_vs_B"]
 
 
 def test_ddp_cpu_ab_rejects_too_few_epochs(tmp_path):
