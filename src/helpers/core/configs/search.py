@@ -1,0 +1,77 @@
+"""Retrieval (:class:`SearchConfig`) and the HOG baseline (:class:`HogConfig`)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from ._checks import _bools, _choice, _ints
+
+SEARCH_METHODS = ("greedy", "fast", "c2f")
+SCHEDULES = ("converge", "authors")
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """How a query is retrieved in a reference bank (:mod:`helpers.search.retrieval`).
+
+    Attributes:
+        method: ``"greedy"`` (every reference of every object), ``"fast"`` (the paper's
+            Algorithm 1: FPS anchors pick the object, then refinement in shrinking
+            neighbourhoods) or ``"c2f"`` (fast retrieval with our coarse-to-fine category
+            stage, not the authors').
+        k_ac: anchors per object (fast, c2f); at most the bank's references are used.
+        fps_k: references scored per refinement step (farthest-point samples of the
+            neighbourhood of the current best).
+        schedule: neighbourhood sizes: ``"converge"`` (the paper's text: halve when the best
+            stops moving) or ``"authors"`` (their code: 4096/2048/1024/512 scaled to R).
+        top_anchors: the object is the one with the best mean of its ``top_anchors`` best
+            anchor scores.
+        max_moves_per_level: ``"converge"``: moves at one neighbourhood size before halving.
+        coarse_k: c2f: anchors per object scored in the coarse round (>= k_ac: no coarse round).
+        refine_objects: c2f: objects that score all ``k_ac`` anchors.
+        halving: c2f: successive halving of the objects instead of one cut.
+        group: references per scorer call.
+        query_batch: fast: queries whose anchor stage is scored in one batched call (each
+            query's seconds then hold its share of it); greedy and c2f run one query at a time.
+    """
+
+    method: str = "fast"
+    k_ac: int = 1024
+    fps_k: int = 256
+    schedule: str = "converge"
+    top_anchors: int = 3
+    max_moves_per_level: int = 20
+    coarse_k: int = 64
+    refine_objects: int = 3
+    halving: bool = False
+    group: int = 1024
+    query_batch: int = 1
+
+    def __post_init__(self) -> None:
+        _choice(self, "method", SEARCH_METHODS)
+        _choice(self, "schedule", SCHEDULES)
+        _ints(self, ("k_ac", "fps_k", "top_anchors", "max_moves_per_level", "coarse_k", "refine_objects", "group",
+                     "query_batch"))
+        _bools(self, ("halving",))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+#: Exhaustive search (every reference of every object): what the HOG baseline and the ablations use.
+GREEDY = SearchConfig(method="greedy")
+
+
+@dataclass(frozen=True)
+class HogConfig:
+    """HOG parameters (Dalal-Triggs defaults).
+
+    Attributes:
+        orientations: unsigned gradient orientation bins.
+        cell: cell side, pixels.
+        block: block side, cells.
+    """
+
+    orientations: int = 9
+    cell: int = 8
+    block: int = 2
