@@ -220,7 +220,8 @@ def log(msg: str) -> None:
     print(f"[bench {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-MEASURED_MODULES = ("net/model.py", "core/configs/model.py", "core/configs/search.py", "net/fusion_kernel.py",
+MEASURED_MODULES = ("net/model.py", "core/configs/model.py", "core/configs/search.py", "core/configs/train.py",
+                    "core/configs/data.py", "core/configs/_checks.py", "net/fusion_kernel.py",
                     "net/fusion_kernel.cpp", "search/retrieval.py", "search/bank.py", "search/fps.py", "search/features.py",
                     "data/datasets.py", "data/render.py", "data/gl.py", "core/rotations.py", "training/losses.py",
                     "training/train.py", "training/augment.py")

@@ -11,7 +11,7 @@ import pytest
 from helpers.core.configs import ModelConfig, TrainConfig, parse_scales
 from helpers.evaluation.paper import COMPONENT_LABELS
 from helpers.study.pipeline import _train_key
-from helpers.study.variants import Trained, variant_config, variant_table, with_seeds
+from helpers.study.variants import Trained, model_source, variant_config, variant_table, with_seeds
 
 
 def _base() -> TrainConfig:
@@ -48,11 +48,20 @@ def _pq(correct: np.ndarray, n_obj: int = 4) -> pd.DataFrame:
 
 
 def test_variant_table_rows():
-    res = {"a": {"means": {"rot_acc": 10.0, "class_acc": 50.0, "median_err_deg": 80.0, "n_queries": 40}}}
-    t = variant_table({"a": Trained(None, Path("/x/split1-abc"), {})}, res, extra={"a": {"paper": 80.9}})
-    assert t.to_dict(orient="records") == [{"variant": "a", "unseen rot_acc": 10.0, "unseen class_acc": 50.0,
-                                            "unseen median_err_deg": 80.0, "n_queries": 40, "run": "split1-abc",
-                                            "paper": 80.9}]
+    means = {"rot_acc": 10.0, "class_acc": 50.0, "median_err_deg": 80.0, "n_queries": 40}
+    res = {"a": {"means": means}, "b": {"means": means}}
+    hist = {"best_epoch": 1, "history": [{"epoch": 1, "global_step": 15}, {"epoch": 2, "global_step": 30}]}
+    zoo_entry = {"sha256": "ab" * 32, "steps": 4000, "best_step": 3200}
+    trained = {"a": Trained(None, Path("/x/split1-abc"), {"history": hist}),
+               "b": Trained(None, Path("/m/avg.pt"), {"zoo": "avg", "zoo_entry": zoo_entry})}
+    t = variant_table(trained, res, extra={"a": {"paper": 80.9}, "b": {"paper": 70.0}})
+    row = {"unseen rot_acc": 10.0, "unseen class_acc": 50.0, "unseen median_err_deg": 80.0, "n_queries": 40}
+    assert t.to_dict(orient="records") == [{"variant": "a", **row, "steps": "30", "run": "split1-abc", "paper": 80.9},
+                                           {"variant": "b", **row, "steps": "4000", "run": "avg", "paper": 70.0}]
+    assert model_source(trained["a"]) == {"source": "train", "model": "split1-abc", "steps": 30, "best_step": 15}
+    assert model_source(trained["b"]) == {"source": "zoo", "model": "avg", "sha256": "ab" * 32, "steps": 4000,
+                                          "best_step": 3200}
+    assert model_source(Trained(None, Path("/x/r"), {}))["steps"] is None
 
 
 # ---------------------------------------------------------------------------- training seeds

@@ -184,6 +184,38 @@ def test_notebook_evaluates_the_zoo_model_with_models_zoo(tmp_path):
     assert (tmp_path / "06" / "metrics.json").exists()
 
 
+@pytest.mark.slow
+def test_ablation_notebook_evaluates_zoo_variants_and_records_them(tmp_path):
+    """Notebook 05 (smoke data) with models="zoo" and two seeds of Avg and adaptive fusion evaluates the four
+    committed models seed by seed, records each one's zoo name, sha256 and steps in metrics.json, keeps
+    its per-query evaluations in the cache (nothing is written into models/), and reads them back."""
+    import papermill as pm
+
+    from helpers.core.paths import cache_dir
+    from helpers.study.parameters import notebook_path
+
+    before = sorted(p.name for p in zoo.ZOO_DIR.rglob("*"))
+    params = {"models": "zoo", "variants": ["avg", "adaptive"], "seeded_variants": ["avg", "adaptive"], "n_seeds": 2}
+    evals = cache_dir() / "evals"
+    counts = []
+    for run in ("a", "b"):
+        pm.execute_notebook(str(notebook_path("05_ablation_fusion")), str(tmp_path / f"05{run}.ipynb"),
+                            kernel_name="python3", parameters={**params, "out_dir": str(tmp_path / run)},
+                            progress_bar=False)
+        counts.append(len(list(evals.glob("*.csv"))))
+    assert sorted(p.name for p in zoo.ZOO_DIR.rglob("*")) == before
+    assert counts[0] >= 4 and counts[1] == counts[0]  # four models' evaluations, read back by the second run
+    a, b = (json.loads((tmp_path / r / "metrics.json").read_text()) for r in ("a", "b"))
+    models = {label: [m["model"] for m in ms] for label, ms in a["models"].items()}
+    assert models == {"avg": ["avg", "avg-seed1"], "adaptive": ["split1", "split1-seed1"]}
+    for ms in a["models"].values():
+        for m in ms:
+            e = zoo.entry(m["model"])
+            assert (m["source"], m["sha256"], m["steps"]) == ("zoo", e["sha256"], e["steps"])
+    assert {row["steps"] for row in a["table"]} == {str(zoo.entry("split1")["steps"])}
+    assert a["table"] == b["table"]
+
+
 def test_long_preset_trains_the_zoo_recipes_runs():
     """The long preset's notebook parameters give the zoo recipes' configs, so notebook 02/03 of
     the long preset and `python -m helpers.study.zoo train` share (and resume) the same cache runs."""

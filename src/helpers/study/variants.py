@@ -41,6 +41,7 @@ import pandas as pd
 
 from ..core.configs import GREEDY, parse_scales
 from ..core.fileio import atomic_write_json, atomic_write_text, stable_hash, write_table
+from ..core.paths import cache_dir
 from ..evaluation.metrics import summarise_queries
 from ..search.features import model_fingerprint
 from .pipeline import StudyData, evaluate, reference_bank
@@ -104,7 +105,40 @@ def train_variants(configs: dict[str, Any], data: StudyData, split: int, val_ref
             print(f"variant {label!r} seed {cfg.seed}", flush=True)
             model, run, info = model_for(split, cfg, data, val_refs, models)
             out[label].append(Trained(model, run, {"seed": cfg.seed, **info}))
+            if models == "zoo":  # the notebook's own budget parameters are not used: say what is
+                src = model_source(out[label][-1])
+                print(f"  zoo model {src['model']}: {src['steps']} steps, evaluated at {src['best_step']}", flush=True)
+    if models == "zoo":
+        budgets = {label: sorted({model_source(t)["steps"] for t in ts}) for label, ts in out.items()}
+        if len({s for v in budgets.values() for s in v}) > 1:
+            raise ValueError(f"models='zoo': the variants' zoo models were trained for different numbers of steps "
+                             f"{budgets}; an ablation compares equal budgets, so train the others to the same "
+                             "budget (`python -m helpers.study.zoo train NAME --publish`) or use models='train'")
     return out
+
+
+def model_source(t: Trained) -> dict:
+    """Where a variant's model came from, for the tables and metrics.json: ``{"source": "zoo", "model":
+    name, "sha256", "steps", "best_step"}`` for a committed zoo model, ``{"source": "train", "model": run
+    folder name, "steps", "best_step"}`` for a cache run (steps: optimiser steps trained; best_step: those of
+    the evaluated checkpoint)."""
+    e = t.info.get("zoo_entry")
+    if e:
+        return {"source": "zoo", "model": t.info["zoo"], "sha256": e["sha256"], "steps": int(e["steps"]),
+                "best_step": e.get("best_step")}
+    hist = (t.info.get("history") or {}).get("history") or []
+    best_epoch = (t.info.get("history") or {}).get("best_epoch")
+    return {"source": "train", "model": Path(t.run).name,
+            "steps": max((int(h["global_step"]) for h in hist), default=None),
+            "best_step": next((int(h["global_step"]) for h in hist if h.get("epoch") == best_epoch), None)}
+
+
+def _evals_dir(t: Trained, data: StudyData) -> Path:
+    """Folder of a model's cached per-query evaluations: its run folder's ``evals/``, or for a zoo model
+    (whose "run" is its committed weight file) the cache's ``evals/``, so nothing is written into
+    ``models/``; the file names hold the weights' fingerprint either way."""
+    run = Path(t.run)
+    return run / "evals" if run.is_dir() else cache_dir(data.cfg.cache_dir) / "evals"
 
 
 def _eval_cache_key(t: Trained, data: StudyData, bench: list[str], queries: dict, eval_refs: int) -> str:
@@ -119,7 +153,8 @@ def evaluate_unseen(trained: dict[str, Any], data: StudyData, split: int, eval_r
     with the first ``eval_refs`` references per object (0: all), for every variant and seed.
 
     A model's per-query results are kept in its run folder (``evals/<key>.csv``, keyed by the
-    weights, bank and queries), so a model shared by several notebooks is evaluated once.
+    weights, bank and queries; a zoo model's in the cache's ``evals/``), so a model shared by several
+    notebooks is evaluated once.
     Returns label -> [result per seed] (each with "per_query", "per_object", "means")."""
     bench = data.manifest.object_names("train")
     queries = {n: data.test_q[n] for n in data.manifest.split_objects(split)}
@@ -127,7 +162,7 @@ def evaluate_unseen(trained: dict[str, Any], data: StudyData, split: int, eval_r
     for label, ts in trained.items():
         out[label] = []
         for t in _as_list(ts):
-            f = Path(t.run) / "evals" / f"{_eval_cache_key(t, data, bench, queries, eval_refs)}.csv"
+            f = _evals_dir(t, data) / f"{_eval_cache_key(t, data, bench, queries, eval_refs)}.csv"
             if f.exists():
                 pq = pd.read_csv(f)
                 per_object, means = summarise_queries(pq)
@@ -155,7 +190,8 @@ def seed_accuracies(results: dict[str, Any]) -> dict[str, list[float]]:
 def variant_table(trained: dict[str, Any], results: dict[str, Any],
                   extra: dict[str, dict] | None = None) -> pd.DataFrame:
     """One row per variant: unseen Rota./Class. Acc. (%, mean over its seeds), median error,
-    queries, seeds with their Rota. Acc. and range, run folders, extras."""
+    queries, seeds with their Rota. Acc. and range, optimiser steps trained, run folders (zoo names for
+    zoo models), extras."""
     rows = []
     seeded = any(len(_as_list(v)) > 1 for v in results.values())
     for label, rs in results.items():
@@ -167,7 +203,10 @@ def variant_table(trained: dict[str, Any], results: dict[str, Any],
         if seeded:
             row.update({"seeds": len(rs), "rot_acc per seed": ", ".join(f"{a:.1f}" for a in accs),
                         "seed range (pts)": float(max(accs) - min(accs)) if len(accs) > 1 else None})
-        row["run"] = ", ".join(Path(t.run).name for t in ts)
+        sources = [model_source(t) for t in ts]
+        steps = sorted({x["steps"] for x in sources if x["steps"] is not None})
+        row["steps"] = ", ".join(map(str, steps)) or None
+        row["run"] = ", ".join(x["model"] for x in sources)
         rows.append({**row, **((extra or {}).get(label) or {})})
     return pd.DataFrame(rows)
 
@@ -190,11 +229,14 @@ def claims_table(trend: dict) -> pd.DataFrame:
 
 
 def save_study(out_dir: Path, stem: str, table: pd.DataFrame, trend: dict, seeds: dict | None = None,
-               split: int | None = None) -> dict:
-    """Write ``<stem>.csv/.md`` and ``metrics.json`` ({table, trend, seeds, noise}) into ``out_dir``."""
+               split: int | None = None, trained: dict[str, Any] | None = None) -> dict:
+    """Write ``<stem>.csv/.md`` and ``metrics.json`` ({table, trend, seeds, noise, models}) into ``out_dir``;
+    ``models`` is label -> [:func:`model_source` per seed] of ``trained``."""
     write_table(table, Path(out_dir) / stem)
     out = {"table": table.to_dict(orient="records"), "trend": {k: v for k, v in trend.items() if v is not None},
-           "seeds": seeds or {}, "noise": NOISE_NOTE, **({} if split is None else {"split": split})}
+           "seeds": seeds or {}, "noise": NOISE_NOTE, **({} if split is None else {"split": split}),
+           **({} if trained is None else
+              {"models": {label: [model_source(t) for t in _as_list(ts)] for label, ts in trained.items()}})}
     atomic_write_json(Path(out_dir) / "metrics.json", out)
     return out
 
