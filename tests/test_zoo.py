@@ -61,12 +61,16 @@ def test_progress_tells_published_from_checkpointed_from_untrained(tmp_path):
                                                                                     "train": {"weighted_loss": False}}}}))
     zdir = tmp_path / "models"
     (zdir / "checkpoints").mkdir(parents=True)
-    (zdir / "zoo.yaml").write_text(yaml.safe_dump({"models": {"tiny": {"steps": 2, "val": {"rot_acc": 0.5}}}}))
+    (zdir / "zoo.yaml").write_text(yaml.safe_dump({"models": {"tiny": {"steps": 2, "val": {"rot_acc": 0.5},
+                                                                  "train_seconds": 90.0, "precision": "fp32",
+                                                                  "train_images_per_s": 30.0}}}))
     torch.save({"global_step": 1}, zdir / "checkpoints" / "tiny-avg.last.pt")
     rows = {r["name"]: r for r in zoo.progress(path, zdir)}
     assert [rows[n]["state"] for n in ("tiny", "tiny-avg", "tiny-wl")] == ["published", "checkpoint", "untrained"]
     assert [rows[n]["steps"] for n in ("tiny", "tiny-avg", "tiny-wl")] == [2, 1, 0]
     assert rows["tiny"]["val"] == {"rot_acc": 0.5} and all(r["budget"] == 2 for r in rows.values())
+    assert (rows["tiny"]["train_seconds"], rows["tiny"]["precision"], rows["tiny"]["images_per_s"]) == (90.0, "fp32", 30.0)
+    assert rows["tiny-avg"]["train_seconds"] is None
     rows = zoo.progress(path, tmp_path / "empty")  # nothing published yet
     assert [r["state"] for r in rows] == ["untrained"] * 3
 

@@ -339,16 +339,19 @@ def progress(path: str | Path = RECIPES, zoo_dir: Path = ZOO_DIR) -> list[dict]:
     """Where each recipe of ``path`` stands in the committed zoo, in the recipes' order: one dict
     {"name", "state" ("published" | "checkpoint": a committed unfinished run | "untrained"),
     "steps" (done), "budget" (epochs x steps_per_epoch; None for one pass per epoch), "val" (the published
-    seen-object validation)}."""
+    seen-object validation), "train_seconds", "precision", "images_per_s" (published: as recorded)}."""
     published = entries(zoo_dir) if (Path(zoo_dir) / "zoo.yaml").exists() else {}
     out = []
     for name, r in recipes(path, device="cpu").items():
         # steps_per_epoch 0/None means one pass over the training queries: no fixed count here
         budget = r.train.epochs * r.train.steps_per_epoch if r.train.steps_per_epoch else None
-        row = {"name": name, "budget": budget, "steps": 0, "val": None, "state": "untrained"}
+        row = {"name": name, "budget": budget, "steps": 0, "val": None, "state": "untrained", "train_seconds": None,
+               "precision": None, "images_per_s": None}
         ck = _checkpoint_path(name, Path(zoo_dir))
         if name in published:
-            row.update(state="published", steps=int(published[name]["steps"]), val=published[name].get("val"))
+            e = published[name]
+            row.update(state="published", steps=int(e["steps"]), val=e.get("val"), train_seconds=e.get("train_seconds"),
+                       precision=e.get("precision"), images_per_s=e.get("train_images_per_s"))
         elif ck.exists():
             row.update(state="checkpoint", steps=int(read_checkpoint(ck, "cpu")["global_step"]))
         out.append(row)
@@ -472,10 +475,16 @@ def main(argv: list[str] | None = None) -> int:
         for name in a.names:
             print(snapshot(recipe(name)))
     elif a.cmd == "list":
-        for row in progress():
+        rows = progress()
+        for row in rows:
             val = "" if not row["val"] else (f"; seen-object validation Rota. Acc. {100 * row['val']['rot_acc']:.1f} %, "
                                              f"Class. Acc. {100 * row['val']['class_acc']:.1f} %")
-            print(f"{row['name']:14s} {row['state']:10s} {row['steps']:5d} / {row['budget'] or '?'} steps{val}")
+            took = "" if not row["train_seconds"] else (f"; {row['train_seconds'] / 60:.0f} min ({row['precision']}, "
+                                                        f"{row['images_per_s']:.0f} images/s)")
+            print(f"{row['name']:14s} {row['state']:10s} {row['steps']:5d} / {row['budget'] or '?'} steps{val}{took}")
+        done = [r for r in rows if r["state"] == "published"]
+        print(f"published {len(done)} of {len(rows)} recipes, "
+              f"{sum(r['train_seconds'] or 0 for r in done) / 3600:.1f} h of training in all")
     elif a.cmd == "speeds":
         for name, v in refresh_speeds().items():
             print(f"{name:14s} {v:.1f} images/s")
