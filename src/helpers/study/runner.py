@@ -33,7 +33,7 @@ from .provenance import git_revision
 from .report import build_report
 
 PRESET_DIR = REPO_ROOT / "presets"
-PRESETS = ("smoke", "quick", "standard", "long", "paper")
+PRESETS = ("smoke", "quick", "long", "paper")  # "standard" (180-step models) retired once the quick preset read the zoo
 STATE_FILE = "runner_state.json"
 COMMON = "common.yaml"  # parameters a preset's notebooks share
 HEARTBEAT_S = 30.0  # how often a running notebook's elapsed time is saved (lost on a kill: at most this much)
