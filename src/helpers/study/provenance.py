@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import importlib.metadata as md
+import json
 import os
 import platform
 import subprocess
@@ -21,7 +22,17 @@ PACKAGES = ("helpers", "torch", "numpy", "scipy", "trimesh", "pyrender-maintaine
 
 
 def git_revision(repo: Path = REPO_ROOT) -> dict[str, Any]:
-    """{"commit": sha or None, "dirty": bool or None}."""
+    """{"commit": sha or None, "dirty": bool or None}.
+
+    A copy of the tree without ``.git`` (the one sent to a lent GPU machine) takes the revision of the
+    checkout it was copied from from ``$HELPERS_GIT_REVISION`` (JSON ``{"commit": ..., "dirty": ...}``,
+    written by ``scripts/gpu_zoo/bundle.py``), recorded with ``"via": "HELPERS_GIT_REVISION"``."""
+    if not (repo / ".git").exists() and os.environ.get("HELPERS_GIT_REVISION"):
+        try:
+            rev = json.loads(os.environ["HELPERS_GIT_REVISION"])
+            return {"commit": rev.get("commit"), "dirty": rev.get("dirty"), "via": "HELPERS_GIT_REVISION"}
+        except (ValueError, AttributeError):
+            return {"commit": None, "dirty": None}
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=repo, capture_output=True, text=True, timeout=10)
         # reports/ is excluded: the runner itself rewrites the committed reports while it runs.

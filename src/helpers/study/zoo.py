@@ -16,7 +16,7 @@ import io
 import json
 import shutil
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -85,7 +85,7 @@ def recipes(path: str | Path = RECIPES, cache_dir: str = "", device: str = "auto
 def recipe(name: str, **kw: Any) -> Recipe:
     rs = recipes(**kw)
     if name not in rs:
-        raise ValueError(f"zoo: no recipe {name!r} in {RECIPES}; known: {sorted(rs)}")
+        raise ValueError(f"zoo: no recipe {name!r} in {kw.get('path', RECIPES)}; known: {sorted(rs)}")
     return rs[name]
 
 
@@ -458,22 +458,27 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("names", nargs="+")
     t.add_argument("--publish", action="store_true")
     t.add_argument("--device", default="auto")
+    t.add_argument("--recipes", default=str(RECIPES), help="recipe file (default: the long preset's zoo.yaml)")
+    t.add_argument("--workers", type=int, default=0, help="rendering processes (default: the recipe's)")
     s = sub.add_parser("snapshot", help="commit-ready copy of an unfinished run's last.pt")
     s.add_argument("names", nargs="+")
+    s.add_argument("--recipes", default=str(RECIPES), help="recipe file (default: the long preset's zoo.yaml)")
     sub.add_parser("list", help="every recipe: published (with its validation), committed checkpoint or untrained")
     sub.add_parser("verify", help="check every committed model file against its sha256")
     sub.add_parser("speeds", help="rewrite each entry's images/s from its history (median over quiet epochs)")
     a = ap.parse_args(argv)
     if a.cmd == "train":
         for name in a.names:
-            r = recipe(name, device=a.device)
+            r = recipe(name, path=a.recipes, device=a.device)
+            if a.workers:  # rendering processes do not change the pixels (not part of any cache key)
+                r = replace(r, data=replace(r.data, workers=a.workers))
             model, run, info, data = train_recipe(r)
             print(f"{name}: trained in {run}")
             if a.publish:
                 print(f"{name}: published {publish(r, run, data)}")
     elif a.cmd == "snapshot":
         for name in a.names:
-            print(snapshot(recipe(name)))
+            print(snapshot(recipe(name, path=a.recipes)))
     elif a.cmd == "list":
         rows = progress()
         for row in rows:

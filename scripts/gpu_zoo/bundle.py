@@ -1,0 +1,84 @@
+"""Build ``.gpu/``: what ``scripts/gpu_zoo/run.py`` needs on a lent GPU machine that has PyTorch but none
+of this study's rendering packages and no network (the ``device`` tool of this workplace).
+
+    .venv/bin/python scripts/gpu_zoo/bundle.py
+
+``.gpu/`` (ignored by git through ``.git/info/exclude``) then holds
+  mods/<module>/...   the manifest's files of the benchmark objects and background photos, laid out as
+                      the packages that ship them (each a stub package, found by
+                      :func:`helpers.data.manifest.module_dir`; no code of those packages travels)
+  whl/                wheels of trimesh, pyrender-maintained, PyOpenGL, freetype-py, pyglet (Python 3.12)
+  gl/                 glvnd's EGL/GL loader packages (.deb; NVIDIA's driver supplies the vendor library)
+  REVISION            the git commit and dirty flag of this checkout (the copy sent has no .git)
+Why not carry rendered views instead: 13 objects x 1,544 views at 96 px are about 0.5 GB; the meshes and
+photos are a few MB, and the GPU machine renders them in seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+OUT = REPO / ".gpu"
+WHEELS = ["trimesh==5.2.0", "pyrender-maintained==1.0.1", "PyOpenGL==3.1.10", "freetype-py==2.5.1", "pyglet==2.1.19"]
+GL_DEBS = ["libegl1", "libglvnd0", "libopengl0", "libgl1", "libglx0", "libgles2"]
+
+
+def copy_manifest_files() -> int:
+    """Copy every file of the ``train``-role objects and the backgrounds; returns bytes copied."""
+    sys.path.insert(0, str(REPO / "src"))
+    from helpers.data.manifest import load_manifest
+
+    m = load_manifest()
+    entries = [f for o in m.objects if o.role == "train" for f in o.files()] + [b.file for b in m.backgrounds]
+    total = 0
+    for f in entries:
+        dst = OUT / "mods" / f.module / f.path
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(f.resolve(), dst)
+        (OUT / "mods" / f.module / "__init__.py").touch()  # a stub package: wins over an installed one
+        total += dst.stat().st_size
+    return total
+
+
+def download() -> None:
+    """Wheels for CPython 3.12 manylinux and the GL loader .debs (package registries only)."""
+    (OUT / "whl").mkdir(parents=True, exist_ok=True)
+    subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary=:all:",
+                    "--python-version", "3.12", "--implementation", "cp", "--platform", "manylinux_2_28_x86_64",
+                    "--platform", "manylinux_2_17_x86_64", "--platform", "manylinux1_x86_64",
+                    "-d", str(OUT / "whl"), *WHEELS], check=True)
+    gl = OUT / "gl"
+    gl.mkdir(parents=True, exist_ok=True)
+    if not list(gl.glob("*.deb")):
+        lists = Path("/tmp/gpu_zoo_apt")
+        (lists / "partial").mkdir(parents=True, exist_ok=True)
+        opts = ["-oAPT::Architecture=amd64", "-oAPT::Architectures=amd64", f"-oDir::State::Lists={lists}"]
+        subprocess.run(["apt-get", *opts, "update", "-q"], check=True, capture_output=True)
+        subprocess.run(["apt-get", *opts, "download", *GL_DEBS], check=True, cwd=gl)
+
+
+def revision() -> dict:
+    sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":!reports",
+                            ":!models"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    return {"commit": sha or None, "dirty": bool(dirty)}
+
+
+def main() -> int:
+    if (OUT / "mods").exists():
+        shutil.rmtree(OUT / "mods")
+    n = copy_manifest_files()
+    download()
+    (OUT / "REVISION").write_text(json.dumps(revision()))
+    size = sum(p.stat().st_size for p in OUT.rglob("*") if p.is_file())
+    print(f"bundle: {OUT} ({size / 2**20:.1f} MiB; manifest files {n / 2**20:.1f} MiB)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
