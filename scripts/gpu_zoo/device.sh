@@ -12,6 +12,7 @@ nv=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .gpu/whl/*.whl || exit 3
 export PYTHONPATH="$PWD/src:$PWD/.gpu/mods:/tmp/site" HELPERS_CACHE_DIR="${HELPERS_CACHE_DIR:-/tmp/cache}"
 export HELPERS_GIT_REVISION="$(cat .gpu/REVISION)" PYOPENGL_PLATFORM="${PYOPENGL_PLATFORM:-egl}"
+export PYGLET_HEADLESS=1  # pyrender imports its viewer (pyglet), which looks for X libraries otherwise
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || true
 python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"
 python3 scripts/gpu_zoo/run.py "$@"

@@ -24,10 +24,10 @@ PACKAGES = ("helpers", "torch", "numpy", "scipy", "trimesh", "pyrender-maintaine
 def git_revision(repo: Path = REPO_ROOT) -> dict[str, Any]:
     """{"commit": sha or None, "dirty": bool or None}.
 
-    A copy of the tree without ``.git`` (the one sent to a lent GPU machine) takes the revision of the
-    checkout it was copied from from ``$HELPERS_GIT_REVISION`` (JSON ``{"commit": ..., "dirty": ...}``,
-    written by ``scripts/gpu_zoo/bundle.py``), recorded with ``"via": "HELPERS_GIT_REVISION"``."""
-    if not (repo / ".git").exists() and os.environ.get("HELPERS_GIT_REVISION"):
+    ``$HELPERS_GIT_REVISION`` (JSON ``{"commit": ..., "dirty": ...}``, written by
+    ``scripts/gpu_zoo/bundle.py``) overrides git, recorded with ``"via": "HELPERS_GIT_REVISION"``: the copy
+    of the tree sent to a lent GPU machine carries a ``.git`` of another commit than the checkout's."""
+    if os.environ.get("HELPERS_GIT_REVISION"):
         try:
             rev = json.loads(os.environ["HELPERS_GIT_REVISION"])
             return {"commit": rev.get("commit"), "dirty": rev.get("dirty"), "via": "HELPERS_GIT_REVISION"}
