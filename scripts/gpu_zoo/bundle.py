@@ -1,7 +1,9 @@
 """Build ``.gpu/``: what ``scripts/gpu_zoo/run.py`` needs on a lent GPU machine that has PyTorch but none
 of this study's rendering packages and no network (the ``device`` tool of this workplace).
 
-    .venv/bin/python scripts/gpu_zoo/bundle.py
+    .venv/bin/python scripts/gpu_zoo/bundle.py            # build .gpu/
+    .venv/bin/python scripts/gpu_zoo/bundle.py detach     # before the device tool's run (see detach)
+    .venv/bin/python scripts/gpu_zoo/bundle.py attach     # right after it
 
 ``.gpu/`` (ignored by git through ``.git/info/exclude``) then holds
   mods/<module>/...   the manifest's files of the benchmark objects and background photos, laid out as
@@ -69,7 +71,38 @@ def revision() -> dict:
     return {"commit": sha or None, "dirty": bool(dirty)}
 
 
+HEAVY = ("models", "reports")  # tracked, together over the tool's 64 MiB; the GPU machine needs neither
+EXCLUDE = REPO / ".git" / "info" / "exclude"
+
+
+def detach() -> None:
+    """Untrack (in the index only) and ignore models/ and reports/ so that the tree sent stays under 64 MiB.
+    Commit nothing until :func:`attach` has run."""
+    backup = EXCLUDE.with_name("exclude.gpu_zoo")
+    if backup.exists():
+        raise SystemExit(f"bundle: {backup} exists: already detached (run `bundle.py attach`)")
+    backup.write_text(EXCLUDE.read_text() if EXCLUDE.exists() else "")
+    EXCLUDE.write_text(backup.read_text() + "".join(f"/{d}/\n" for d in HEAVY))
+    subprocess.run(["git", "rm", "-r", "-q", "--cached", *HEAVY], cwd=REPO, check=True)
+
+
+def attach() -> None:
+    """Undo :func:`detach`."""
+    backup = EXCLUDE.with_name("exclude.gpu_zoo")
+    if not backup.exists():
+        raise SystemExit("bundle: not detached")
+    EXCLUDE.write_text(backup.read_text())
+    subprocess.run(["git", "reset", "-q", "--", *HEAVY], cwd=REPO, check=True)
+    backup.unlink()
+
+
 def main() -> int:
+    cmd = sys.argv[1] if len(sys.argv) > 1 else "build"
+    if cmd in ("detach", "attach"):
+        detach() if cmd == "detach" else attach()
+        return 0
+    if cmd != "build":
+        raise SystemExit(f"bundle.py: expected build, detach or attach, got {cmd!r}")
     if (OUT / "mods").exists():
         shutil.rmtree(OUT / "mods")
     n = copy_manifest_files()

@@ -93,7 +93,7 @@ def pack(names: list[str], recipes: str, out: Path) -> None:
     zoo_dir = REPO / "models"
     entries = (yaml.safe_load((zoo_dir / "zoo.yaml").read_text()) or {}) if (zoo_dir / "zoo.yaml").exists() else {}
     entries = entries.get("models", entries)
-    used, n_files = 0, 1  # log.txt
+    budget = {"bytes": 0, "files": 1}  # log.txt
     for name in names:
         if (zoo_dir / f"{name}.pt").exists() and name in entries:
             (zoo_dir / f"{name}.entry.yaml").write_text(yaml.safe_dump({name: entries[name]}, sort_keys=False))
@@ -109,19 +109,28 @@ def pack(names: list[str], recipes: str, out: Path) -> None:
         with tarfile.open(dst, "w:gz") as tar:
             for p in files:
                 tar.add(p, arcname=str(p.relative_to(REPO)))
-        size = dst.stat().st_size
-        parts = -(-size // FILE_LIMIT)  # a checkpoint with Adam's state can exceed one file's limit
-        if used + size > TOTAL_LIMIT or n_files + parts > MAX_FILES:
-            log(f"{name}: {dst.name} ({size / 2**20:.1f} MiB) does not fit what comes back; left out", out)
-            dst.unlink()
-            continue
-        if parts > 1:  # rejoin here with: cat NAME.ckpt.tgz.part* > NAME.ckpt.tgz
-            data = dst.read_bytes()
-            dst.unlink()
-            for i in range(parts):
-                (out / f"{dst.name}.part{i}").write_bytes(data[i * FILE_LIMIT:(i + 1) * FILE_LIMIT])
-        used, n_files = used + size, n_files + parts
-        log(f"{name}: packed {dst.name} ({size / 2**20:.1f} MiB, {parts} file(s))", out)
+        size, parts = dst.stat().st_size, fit(dst, budget)
+        log(f"{name}: {dst.name} ({size / 2**20:.1f} MiB) " +
+            (f"packed in {parts} file(s)" if parts else "does not fit what comes back; left out"), out)
+
+
+def fit(dst: Path, budget: dict) -> int:
+    """Keep ``dst`` in the files that come back if the budget (``{"bytes": used, "files": used}``) allows,
+    split into parts of at most FILE_LIMIT bytes (``dst.name + ".partI"``; rejoin with ``cat``); else
+    delete it. Returns the number of files kept (0: left out)."""
+    size = dst.stat().st_size
+    parts = -(-size // FILE_LIMIT)  # a checkpoint with Adam's state exceeds one file's limit
+    if budget["bytes"] + size > TOTAL_LIMIT or budget["files"] + parts > MAX_FILES:
+        dst.unlink()
+        return 0
+    if parts > 1:
+        data = dst.read_bytes()
+        dst.unlink()
+        for i in range(parts):
+            dst.with_name(f"{dst.name}.part{i}").write_bytes(data[i * FILE_LIMIT:(i + 1) * FILE_LIMIT])
+    budget["bytes"] += size
+    budget["files"] += parts
+    return parts
 
 
 def main() -> int:

@@ -133,7 +133,7 @@ _MIN_INT = {
     "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 1, "fps_k": 1,
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
-    "occluded_queries": 0, "eval_refs": 0, "byo_queries": 0,
+    "occluded_queries": 0, "eval_refs": 0, "byo_queries": 0, "zoo_steps": 0,
     "n_seeds": 1, "test_queries": 0, "query": 0, "top_k": 1, "n_queries": 1,
 }
 _CHOICES = {
@@ -179,6 +179,8 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         raise _err(notebook, "render_size", f">= image_size ({P['image_size']})", P["render_size"])
     if "split" in P and P["split"] not in _SPLITS:
         raise _err(notebook, "split", f"one of {list(_SPLITS)}", P["split"])
+    if P.get("zoo_steps") and P.get("models") == "zoo":
+        _check_zoo_steps(notebook, P["zoo_steps"])
     for name in ("splits", "baseline_splits"):
         v = P.get(name)
         if v is not None and (not v or len(set(v)) != len(v) or not set(v) <= set(_SPLITS)):
@@ -226,6 +228,15 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
     if notebook.startswith("09"):
         _check_tless(notebook, P)
     _check_configs(notebook, P)
+
+
+def _check_zoo_steps(notebook: str, steps: int) -> None:
+    """``zoo_steps``: a budget some published zoo model has (which models have it, notebook 03 finds)."""
+    zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"  # read directly: the zoo module pulls in training
+    zoo = (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
+    budgets = sorted({int(e["steps"]) for e in zoo.values()})
+    if steps not in budgets:
+        raise _err(notebook, "zoo_steps", f"0 or a budget of the published zoo, one of {budgets}", steps)
 
 
 def _check_model_choice(notebook: str, name: str, choice: str, image_size: int) -> None:

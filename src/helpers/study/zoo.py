@@ -16,7 +16,7 @@ import io
 import json
 import shutil
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -393,17 +393,24 @@ MODEL_SOURCES = ("train", "zoo")
 _VARIANT_FIELDS = ("seed", "weighted_loss", "occlusion", "random_ref")
 
 
-def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR) -> str:
+def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR, steps: int = 0) -> str:
     """Name of the zoo model trained on ``split`` with ``train_cfg``'s architecture and variant
-    switches (seed, loss, occlusion, random reference); the budget may differ (the zoo's is longer).
-    ValueError listing what the zoo has when none matches."""
+    switches (seed, loss, occlusion, random reference); the budget is the zoo's, not ``train_cfg``'s:
+    ``steps`` optimiser steps, or (0) the shortest budget the zoo has for it (4,000 steps; every ablation
+    variant has that one). ValueError listing what the zoo has when none matches."""
     want = ModelConfig.from_dict(train_cfg.model.to_dict()).to_dict()
     zoo = entries(zoo_dir)
-    for name, e in zoo.items():
-        t = e["train"]
-        if e["split"] == split and ModelConfig.from_dict(t["model"]).to_dict() == want \
-                and all(t.get(f) == getattr(train_cfg, f) for f in _VARIANT_FIELDS):
-            return name
+    found = {name: int(e["steps"]) for name, e in zoo.items()
+             if e["split"] == split and ModelConfig.from_dict(e["train"]["model"]).to_dict() == want
+             and all(e["train"].get(f) == getattr(train_cfg, f) for f in _VARIANT_FIELDS)}
+    if found and steps:
+        for name, n in found.items():
+            if n == steps:
+                return name
+        raise ValueError(f"models='zoo', zoo_steps={steps}: the zoo's models for split {split} and this variant "
+                         f"have {sorted(set(found.values()))} steps ({sorted(found)})")
+    if found:
+        return min(found, key=lambda name: (found[name], list(zoo).index(name)))
     raise ValueError(f"models='zoo': no zoo model for split {split} with model {want} and "
                      f"{ {f: getattr(train_cfg, f) for f in _VARIANT_FIELDS} }; the zoo has "
                      f"{ {n: (e['split'], e['train']['model'].get('fusion'), e['seed']) for n, e in zoo.items()} }. "
@@ -411,16 +418,16 @@ def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR) -> str:
 
 
 def model_for(split: int, train_cfg: TrainConfig, data: Any, val_refs: int, models: str = "train",
-              zoo_dir: Path = ZOO_DIR) -> tuple[OrientationNet, Path, dict]:
+              zoo_dir: Path = ZOO_DIR, zoo_steps: int = 0) -> tuple[OrientationNet, Path, dict]:
     """What a notebook evaluates: ``models="train"`` trains (or loads from the cache) with
     ``train_cfg`` (:func:`helpers.study.pipeline.train_or_load`); ``models="zoo"`` loads the committed zoo
     model of :func:`find`. Returns (model in eval mode, run folder or weight file, info with
-    ``history``)."""
+    ``history``). ``zoo_steps``: the zoo budget to load (:func:`find`; 0: the shortest)."""
     if models not in MODEL_SOURCES:
         raise ValueError(f"models: expected one of {MODEL_SOURCES}, got {models!r}")
     if models == "train":
         return train_or_load(split, train_cfg, data, val_refs_per_object=val_refs)
-    name = find(split, train_cfg, zoo_dir)
+    name = find(split, train_cfg, zoo_dir, steps=zoo_steps)
     model, e = load(name, device=train_cfg.device, zoo_dir=zoo_dir)
     if e["data"]["image_size"] != data.cfg.image_size:
         raise ValueError(f"models='zoo': {name} takes {e['data']['image_size']} px crops, the data are "
@@ -445,61 +452,7 @@ def zoo_curve(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR) -> tu
     return label, np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
 
 
-# ----------------------------------------------------------------------------- command line
+if __name__ == "__main__":  # `python -m helpers.study.zoo ...`: the command line lives in zoo_cli (run, not
+    import runpy           # imported: zoo_cli imports this module)
 
-def main(argv: list[str] | None = None) -> int:
-    """``python -m helpers.study.zoo train NAME [NAME ...] [--publish]`` | ``snapshot NAME`` | ``list`` | ``verify``
-    | ``speeds``."""
-    import argparse
-
-    ap = argparse.ArgumentParser(prog="python -m helpers.study.zoo", description=main.__doc__)
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    t = sub.add_parser("train", help="train (or resume) zoo recipes; --publish writes models/<name>.*")
-    t.add_argument("names", nargs="+")
-    t.add_argument("--publish", action="store_true")
-    t.add_argument("--device", default="auto")
-    t.add_argument("--recipes", default=str(RECIPES), help="recipe file (default: the long preset's zoo.yaml)")
-    t.add_argument("--workers", type=int, default=0, help="rendering processes (default: the recipe's)")
-    s = sub.add_parser("snapshot", help="commit-ready copy of an unfinished run's last.pt")
-    s.add_argument("names", nargs="+")
-    s.add_argument("--recipes", default=str(RECIPES), help="recipe file (default: the long preset's zoo.yaml)")
-    sub.add_parser("list", help="every recipe: published (with its validation), committed checkpoint or untrained")
-    sub.add_parser("verify", help="check every committed model file against its sha256")
-    sub.add_parser("speeds", help="rewrite each entry's images/s from its history (median over quiet epochs)")
-    a = ap.parse_args(argv)
-    if a.cmd == "train":
-        for name in a.names:
-            r = recipe(name, path=a.recipes, device=a.device)
-            if a.workers:  # rendering processes do not change the pixels (not part of any cache key)
-                r = replace(r, data=replace(r.data, workers=a.workers))
-            model, run, info, data = train_recipe(r)
-            print(f"{name}: trained in {run}")
-            if a.publish:
-                print(f"{name}: published {publish(r, run, data)}")
-    elif a.cmd == "snapshot":
-        for name in a.names:
-            print(snapshot(recipe(name, path=a.recipes)))
-    elif a.cmd == "list":
-        rows = progress()
-        for row in rows:
-            val = "" if not row["val"] else (f"; seen-object validation Rota. Acc. {100 * row['val']['rot_acc']:.1f} %, "
-                                             f"Class. Acc. {100 * row['val']['class_acc']:.1f} %")
-            took = "" if not row["train_seconds"] else (f"; {row['train_seconds'] / 60:.0f} min ({row['precision']}, "
-                                                        f"{row['images_per_s']:.0f} images/s)")
-            print(f"{row['name']:14s} {row['state']:10s} {row['steps']:5d} / {row['budget'] or '?'} steps{val}{took}")
-        done = [r for r in rows if r["state"] == "published"]
-        print(f"published {len(done)} of {len(rows)} recipes, "
-              f"{sum(r['train_seconds'] or 0 for r in done) / 3600:.1f} h of training in all")
-    elif a.cmd == "speeds":
-        for name, v in refresh_speeds().items():
-            print(f"{name:14s} {v:.1f} images/s")
-    elif a.cmd == "verify":
-        bad = verify()
-        for b in bad:
-            print(b)
-        return 1 if bad else 0
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    runpy.run_module("helpers.study.zoo_cli", run_name="__main__")
