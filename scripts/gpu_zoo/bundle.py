@@ -11,7 +11,8 @@ of this study's rendering packages and no network (the ``device`` tool of this w
                       :func:`helpers.data.manifest.module_dir`; no code of those packages travels)
   whl/                wheels of trimesh, pyrender-maintained, PyOpenGL, freetype-py, pyglet (Python 3.12)
   gl/                 glvnd's EGL/GL loader packages (.deb; NVIDIA's driver supplies the vendor library)
-  REVISION            the git commit and dirty flag of this checkout (the copy sent has no .git)
+  REVISION            the git commit and dirty flag of this checkout (the copy sent carries a .git of
+                      another commit, so $HELPERS_GIT_REVISION tells the trainers this one)
 Why not carry rendered views instead: 13 objects x 1,544 views at 96 px are about 0.5 GB; the meshes and
 photos are a few MB, and the GPU machine renders them in seconds.
 """
@@ -64,13 +65,6 @@ def download() -> None:
         subprocess.run(["apt-get", *opts, "download", *GL_DEBS], check=True, cwd=gl)
 
 
-def revision() -> dict:
-    sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":!reports",
-                            ":!models"], cwd=REPO, capture_output=True, text=True).stdout.strip()
-    return {"commit": sha or None, "dirty": bool(dirty)}
-
-
 HEAVY = ("models", "reports")  # tracked, together over the tool's 64 MiB; the GPU machine needs neither
 EXCLUDE = REPO / ".git" / "info" / "exclude"
 
@@ -107,7 +101,9 @@ def main() -> int:
         shutil.rmtree(OUT / "mods")
     n = copy_manifest_files()
     download()
-    (OUT / "REVISION").write_text(json.dumps(revision()))
+    from helpers.study.provenance import git_revision  # src/ is on sys.path (copy_manifest_files)
+
+    (OUT / "REVISION").write_text(json.dumps(git_revision(REPO)))  # build before `detach`: it stages deletions
     size = sum(p.stat().st_size for p in OUT.rglob("*") if p.is_file())
     print(f"bundle: {OUT} ({size / 2**20:.1f} MiB; manifest files {n / 2**20:.1f} MiB)")
     return 0

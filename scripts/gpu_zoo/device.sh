@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# On a lent GPU machine (the `device` tool, which sends this checkout without .git and with the carried
-# `.gpu/` of scripts/gpu_zoo/bundle.py): unpack the GL loaders and wheels, then train with run.py.
+# On a lent GPU machine (the `device` tool, which sends this checkout's files with the carried `.gpu/` of
+# scripts/gpu_zoo/bundle.py): unpack the GL loaders and wheels, then train with run.py.
 #   bash scripts/gpu_zoo/device.sh [run.py options] NAME ...
 set -uo pipefail
 export GPU_ZOO_T0="$(date +%s)"

@@ -90,9 +90,11 @@ def train_all(names: list[str], recipes: str, deadline: float, threads: int, out
 
 def pack(names: list[str], recipes: str, out: Path) -> None:
     """Published models first, then checkpoints of unfinished ones, within the tool's limits."""
+    sys.path.insert(0, str(REPO / "src"))
+    from helpers.study.zoo import entries as zoo_entries
+
     zoo_dir = REPO / "models"
-    entries = (yaml.safe_load((zoo_dir / "zoo.yaml").read_text()) or {}) if (zoo_dir / "zoo.yaml").exists() else {}
-    entries = entries.get("models", entries)
+    entries = zoo_entries(zoo_dir) if (zoo_dir / "zoo.yaml").exists() else {}
     budget = {"bytes": 0, "files": 1}  # log.txt
     for name in names:
         if (zoo_dir / f"{name}.pt").exists() and name in entries:

@@ -230,10 +230,15 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
     _check_configs(notebook, P)
 
 
+def _zoo_entries() -> dict:
+    """models/zoo.yaml's entries by name, read directly: the zoo module pulls in training."""
+    zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"
+    return (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
+
+
 def _check_zoo_steps(notebook: str, steps: int) -> None:
     """``zoo_steps``: a budget some published zoo model has (which models have it, notebook 03 finds)."""
-    zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"  # read directly: the zoo module pulls in training
-    zoo = (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
+    zoo = _zoo_entries()
     budgets = sorted({int(e["steps"]) for e in zoo.values()})
     if steps not in budgets:
         raise _err(notebook, "zoo_steps", f"0 or a budget of the published zoo, one of {budgets}", steps)
@@ -246,8 +251,7 @@ def _check_model_choice(notebook: str, name: str, choice: str, image_size: int) 
             raise _err(notebook, name, "a zoo model name or an existing checkpoint (.pt) file "
                        f"(relative paths from the repository root: {REPO_ROOT})", choice)
         return
-    zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"  # read directly: the zoo module pulls in training
-    zoo = (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
+    zoo = _zoo_entries()
     if choice not in zoo:
         raise _err(notebook, name, f"a zoo model among {sorted(zoo)} or a checkpoint (.pt) file", choice)
     if zoo[choice]["data"]["image_size"] != image_size:

@@ -410,7 +410,7 @@ def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR, steps: int
         raise ValueError(f"models='zoo', zoo_steps={steps}: the zoo's models for split {split} and this variant "
                          f"have {sorted(set(found.values()))} steps ({sorted(found)})")
     if found:
-        return min(found, key=lambda name: (found[name], list(zoo).index(name)))
+        return min(found, key=found.get)  # ties: the first in zoo.yaml
     raise ValueError(f"models='zoo': no zoo model for split {split} with model {want} and "
                      f"{ {f: getattr(train_cfg, f) for f in _VARIANT_FIELDS} }; the zoo has "
                      f"{ {n: (e['split'], e['train']['model'].get('fusion'), e['seed']) for n, e in zoo.items()} }. "
