@@ -259,3 +259,18 @@ def test_portable_names_paths_by_their_role(monkeypatch, tmp_path):
     assert portable_obj({"a": [str(tmp_path / "c")], "n": 3}) == {"a": ["<cache>"], "n": 3}
     assert _ABS.findall(portable(f"see {tmp_path}/out.png")) == []
     assert portable(f"\x1b[0;32m{REPO_ROOT}/src/x.py\x1b[0m") == "\x1b[0;32msrc/x.py\x1b[0m"  # a traceback's colours
+
+
+def test_the_next_holder_removes_an_owner_record_half_written_by_a_killed_one(tmp_path):
+    """A builder killed while writing its owner record leaves that write's temporary beside the lock;
+    the next process to take the lock removes it (only a holder writes the record)."""
+    from helpers.core.locks import lock_path
+
+    entry = tmp_path / "entry"
+    stray = lock_path(entry).with_name(f".{lock_path(entry).name}.owner.abc123.tmp")
+    stray.write_text('{"pid": 1')
+    other = tmp_path / ".other.lock.owner.abc123.tmp"  # another entry's: left alone
+    other.write_text("{}")
+    with entry_lock(entry, "my entry"):
+        assert not stray.exists()
+    assert other.exists() and _leftovers(tmp_path) == [other]

@@ -98,18 +98,21 @@ def _key(lock: Path) -> str:
 def _holding(fl: FileLock, key: str, entry: str | os.PathLike, what: str, warn_stale: bool) -> Iterator[None]:
     """With ``fl`` acquired: report a dead previous holder, record this process as owner, release at exit."""
     lock = Path(fl.lock_file)
+    owner = _owner_path(lock)
     _HELD[key] = [fl, 1]
     try:
         stale = read_owner(entry)
+        for stray in lock.parent.glob(f".{owner.name}.*.tmp"):  # a holder killed while writing its record
+            stray.unlink(missing_ok=True)  # (only the holder writes it, and we hold the lock now)
         if stale is not None and warn_stale:
             warnings.warn(f"{what}: its previous builder, {_describe(stale)}, died before finishing (lock {lock}); "
                           "its finished parts are reused, the rest is rebuilt", RuntimeWarning, stacklevel=4)
-        atomic_write_json(_owner_path(lock), {"pid": os.getpid(), "host": socket.gethostname(),
-                                              "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                                              "what": what, "by": made_by()})
+        atomic_write_json(owner, {"pid": os.getpid(), "host": socket.gethostname(),
+                                  "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                                  "what": what, "by": made_by()})
         yield
     finally:
-        _owner_path(lock).unlink(missing_ok=True)
+        owner.unlink(missing_ok=True)
         del _HELD[key]
         fl.release()
 
