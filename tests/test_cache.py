@@ -274,3 +274,26 @@ def test_the_next_holder_removes_an_owner_record_half_written_by_a_killed_one(tm
     with entry_lock(entry, "my entry"):
         assert not stray.exists()
     assert other.exists() and _leftovers(tmp_path) == [other]
+
+
+def test_settle_removes_the_record_of_a_builder_that_died_after_finishing(tmp_path):
+    """A builder killed between finishing its entry and releasing the lock leaves its owner record; a
+    later process that finds the entry finished (without locking it) removes it, unless a live one holds it."""
+    from helpers.core.locks import lock_path, settle
+
+    entry = tmp_path / "entry"
+    owner = lock_path(entry).with_name(lock_path(entry).name + ".owner")
+    owner.write_text('{"pid": 1}')
+    settle(entry)
+    assert not owner.exists() and _leftovers(tmp_path) == []
+    settle(entry)  # nothing to do
+    holder = subprocess.Popen([sys.executable, "-c", "import time; from helpers.core.locks import entry_lock\n"
+                               f"with entry_lock({str(entry)!r}, 'test'):\n print('held', flush=True); time.sleep(60)"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        settle(entry)  # a live builder's record stays
+        assert owner.exists()
+    finally:
+        holder.kill()
+        holder.wait()

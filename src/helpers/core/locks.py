@@ -202,3 +202,11 @@ def try_entry_lock(entry: str | os.PathLike, what: str) -> Iterator[bool]:
         return
     with _holding(fl, key, entry, what, warn_stale=False):
         yield True
+
+
+def settle(entry: str | os.PathLike) -> None:
+    """For an entry found finished without taking its lock: remove the owner record of a builder that
+    died after finishing it but before releasing (the lock is free; one stat when there is none)."""
+    if _owner_path(lock_path(entry)).exists():
+        with try_entry_lock(entry, "settling a finished entry"):
+            pass  # holding the free lock, then releasing it, removes the dead builder's record

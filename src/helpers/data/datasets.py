@@ -48,7 +48,7 @@ from ..core.fileio import (
     stable_hash,
     touch,
 )
-from ..core.locks import entry_lock, made_by, try_entry_lock
+from ..core.locks import entry_lock, made_by, settle, try_entry_lock
 from ..core.paths import cache_dir
 from ..core.rotations import haar_uniform
 from ..core.views import ObjectViews
@@ -372,6 +372,8 @@ def render_sets(specs: list[ViewSetSpec], cache: str | os.PathLike | None = None
                 _render_chunks(todo, workers, manifest, progress)
             for d, s in pending.items():
                 _finish(d, s, keep_chunks)
+    for d in dirs:
+        settle(d)
     return [_load_complete(d, spec, manifest, mmap) for d, spec in zip(dirs, specs)]
 
 

@@ -34,7 +34,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ..core.fileio import DamagedEntry, atomic_write_json, preallocate, sha256_file, touch
-from ..core.locks import entry_lock, made_by
+from ..core.locks import entry_lock, made_by, settle
 from ..core.views import ObjectViews
 
 SIDECAR_VERSION = 1
@@ -240,6 +240,7 @@ class FeatureCache:
         final, side, _ = self.paths(model_key, refset_key)
         done = self._finished(model_key, refset_key, keys)
         if done is not None:
+            settle(final)
             return done
         # One builder per file; a process that waited finds it finished and loads it.
         with entry_lock(final, f"features of {views.name} ({model_key}/{refset_key})"):

@@ -18,7 +18,7 @@ import torch
 from ..core.configs import DataConfig, SearchConfig
 from ..core.device import resolve_device
 from ..core.fileio import DamagedEntry, atomic_write_json, check_sha256, read_json, sha256_file, stable_hash, touch
-from ..core.locks import entry_lock, made_by
+from ..core.locks import entry_lock, made_by, settle
 from ..core.paths import cache_dir
 from ..core.views import ObjectViews
 from ..data.datasets import ViewSetSpec, render_sets
@@ -140,6 +140,7 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
         with run_lock(run):
             if not _finished_run(run):  # another process may have finished it while we waited
                 _train_run(split, train_cfg, data, val_refs_per_object, run, seen, world)
+    settle(run)
     info = check_run(run)
     touch(run / "done.json")  # its modification time is the run's last use
     model, _ = load_model(run / "best.pt", device=getattr(train_cfg, "device", "auto"))
