@@ -10,6 +10,7 @@ import pytest
 
 from helpers.core.configs import ModelConfig, TrainConfig, parse_scales
 from helpers.evaluation.paper import COMPONENT_LABELS
+from helpers.evaluation.stats import accuracy_ci
 from helpers.study.pipeline import _train_key
 from helpers.study.variants import Trained, model_source, variant_config, variant_table, with_seeds
 
@@ -47,15 +48,24 @@ def _pq(correct: np.ndarray, n_obj: int = 4) -> pd.DataFrame:
                          "err_deg": np.where(correct, 5.0, 90.0)})
 
 
+def _pq(n_ok: int, n: int = 50) -> pd.DataFrame:
+    """A per-query table of one object whose first ``n_ok`` of ``n`` queries are right."""
+    ok = np.arange(n) < n_ok
+    return pd.DataFrame({"query_id": [f"o:{i}" for i in range(n)], "obj": "o", "rot_ok": ok, "class_ok": True})
+
+
 def test_variant_table_rows():
     means = {"rot_acc": 10.0, "class_acc": 50.0, "median_err_deg": 80.0, "n_queries": 40}
-    res = {"a": {"means": means}, "b": {"means": means}}
+    res = {"a": {"means": means, "per_query": _pq(5)}, "b": {"means": means, "per_query": _pq(5)}}
     hist = {"best_epoch": 1, "history": [{"epoch": 1, "global_step": 15}, {"epoch": 2, "global_step": 30}]}
     zoo_entry = {"sha256": "ab" * 32, "steps": 4000, "best_step": 3200}
     trained = {"a": Trained(None, Path("/x/split1-abc"), {"history": hist}),
                "b": Trained(None, Path("/m/avg.pt"), {"zoo": "avg", "zoo_entry": zoo_entry})}
     t = variant_table(trained, res, extra={"a": {"paper": 80.9}, "b": {"paper": 70.0}})
-    row = {"unseen rot_acc": 10.0, "unseen class_acc": 50.0, "unseen median_err_deg": 80.0, "n_queries": 40}
+    lo, hi = accuracy_ci(_pq(5))[1]
+    assert lo < 10.0 < hi  # the interval of 5 right answers out of 50 queries
+    row = {"unseen rot_acc": 10.0, "ci95 lo": lo, "ci95 hi": hi, "unseen class_acc": 50.0,
+           "unseen median_err_deg": 80.0, "n_queries": 40}
     assert t.to_dict(orient="records") == [{"variant": "a", **row, "steps": "30", "run": "split1-abc", "paper": 80.9},
                                            {"variant": "b", **row, "steps": "4000", "run": "avg", "paper": 70.0}]
     assert model_source(trained["a"]) == {"source": "train", "model": "split1-abc", "steps": 30, "best_step": 15}
@@ -80,15 +90,22 @@ def test_with_seeds_gives_seeded_variants_consecutive_seeds_and_keeps_the_others
 
 
 def test_variant_table_with_seeds_shows_each_seed_and_the_range():
-    res = {"a": [{"means": {"rot_acc": 10.0, "class_acc": 50.0, "median_err_deg": 80.0, "n_queries": 40}},
-                 {"means": {"rot_acc": 14.0, "class_acc": 52.0, "median_err_deg": 70.0, "n_queries": 40}}],
-           "b": [{"means": {"rot_acc": 20.0, "class_acc": 60.0, "median_err_deg": 60.0, "n_queries": 40}}]}
+    res = {"a": [{"means": {"rot_acc": 10.0, "class_acc": 50.0, "median_err_deg": 80.0, "n_queries": 40},
+                  "per_query": _pq(5)},
+                 {"means": {"rot_acc": 14.0, "class_acc": 52.0, "median_err_deg": 70.0, "n_queries": 40},
+                  "per_query": _pq(7)}],
+           "b": [{"means": {"rot_acc": 20.0, "class_acc": 60.0, "median_err_deg": 60.0, "n_queries": 40},
+                  "per_query": _pq(10)}]}
     tr = {"a": [Trained(None, Path("/x/split1-s0"), {}), Trained(None, Path("/x/split1-s1"), {})],
           "b": [Trained(None, Path("/x/split1-b"), {})]}
     t = variant_table(tr, res).set_index("variant")
     assert t.loc["a", "unseen rot_acc"] == 12.0 and t.loc["a", "seed range (pts)"] == 4.0
     assert t.loc["a", "rot_acc per seed"] == "10.0, 14.0" and t.loc["a", "run"] == "split1-s0, split1-s1"
     assert t.loc["b", "seeds"] == 1 and pd.isna(t.loc["b", "seed range (pts)"])
+    # The interval is that of the seed mean (12 %): both seeds answer the same 50 queries.
+    seed_mean_pq = _pq(5).assign(rot_ok=(_pq(5)["rot_ok"].astype(float) + _pq(7)["rot_ok"]) / 2)
+    assert [t.loc["a", "ci95 lo"], t.loc["a", "ci95 hi"]] == accuracy_ci(seed_mean_pq)[1]
+    assert t.loc["a", "ci95 lo"] < 12.0 < t.loc["a", "ci95 hi"]
 
 
 def test_seeded_variants_are_checked_before_any_work():
@@ -104,3 +121,21 @@ def test_seeded_variants_are_checked_before_any_work():
         check_parameters("07_fast_vs_greedy", {"test_queries": 99})  # smoke renders 4 per object
     assert COMPONENT_LABELS == ("LN off, wInfoNCE off", "LN off, wInfoNCE on", "LN on, wInfoNCE off",
                                 "LN on, wInfoNCE on")
+
+
+def test_ablation_bars_draw_each_variants_interval(monkeypatch, tmp_path):
+    """The ablation charts carry the table's 95 % intervals as error bars (lower, upper around the value)."""
+    from matplotlib.container import ErrorbarContainer
+
+    from helpers.study import figures
+
+    drawn = {}
+    monkeypatch.setattr(figures, "save", lambda fig, path: drawn.setdefault("fig", fig) and Path(path))
+    df = pd.DataFrame({"variant": ["a", "b"], "unseen rot_acc": [50.0, 60.0], "ci95 lo": [45.0, 52.0],
+                       "ci95 hi": [56.0, 67.0], "paper": [80.0, None]})
+    figures.bars(df, "variant", "unseen rot_acc", tmp_path / "x.png", "t", paper_col="paper",
+                 ci_cols=("ci95 lo", "ci95 hi"))
+    ax = drawn["fig"].axes[0]
+    (bars_err,) = [c for c in ax.containers if isinstance(c, ErrorbarContainer)]
+    segs = bars_err.lines[2][0].get_segments()
+    assert [(s[0][1], s[1][1]) for s in segs] == [(45.0, 56.0), (52.0, 67.0)]

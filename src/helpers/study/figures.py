@@ -67,17 +67,26 @@ def view_grid(rows: dict[str, list[ObjectViews]], n_per_set: int, path: str | os
 
 
 def bars(df: pd.DataFrame, label_col: str, value_col: str, path: Path, title: str,
-         paper_col: str | None = None) -> Path:
-    """Bar chart of one metric per variant (with the paper's values hatched beside, if given)."""
+         paper_col: str | None = None, ci_cols: tuple[str, str] | None = None) -> Path:
+    """Bar chart of one metric per variant, with the paper's values hatched beside (``paper_col``) and 95 %
+    intervals as error bars (``ci_cols``: the columns of the lower and upper bound, same unit as the value).
+    The legend sits below the axes so it never hides a bar."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(max(4, 0.9 * len(df) + 1.5), 3.2))
+    fig, ax = plt.subplots(figsize=(max(4, 0.9 * len(df) + 1.5), 3.6))
     x = np.arange(len(df))
     w = 0.38 if paper_col else 0.6
-    ax.bar(x - (w / 2 if paper_col else 0), df[value_col], w, label="ours")
+    vals = pd.to_numeric(df[value_col], errors="coerce").to_numpy()
+    err = None
+    if ci_cols:
+        lo, hi = (pd.to_numeric(df[c], errors="coerce").to_numpy() for c in ci_cols)
+        err = np.vstack([vals - lo, hi - vals])
+    ax.bar(x - (w / 2 if paper_col else 0), vals, w, yerr=err, capsize=3,
+           label="ours" + (" (95 % interval over queries)" if ci_cols else ""))
     if paper_col:
         pv = pd.to_numeric(df[paper_col], errors="coerce")
         ax.bar(x + w / 2, pv.fillna(0), w, label="paper (LineMOD)", color="lightgrey", edgecolor="k", hatch="//")
-        ax.legend(fontsize=7)
+    if paper_col or ci_cols:
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2, frameon=False)
     ax.set_xticks(x, df[label_col], rotation=20, fontsize=8)
     ax.set_ylabel(value_col)
     ax.set_title(title, fontsize=9)

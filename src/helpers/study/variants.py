@@ -43,6 +43,7 @@ from ..core.configs import GREEDY, parse_scales
 from ..core.fileio import atomic_write_json, atomic_write_text, stable_hash, write_table
 from ..core.paths import cache_dir
 from ..evaluation.metrics import summarise_queries
+from ..evaluation.stats import accuracy_ci, seed_mean
 from ..search.features import model_fingerprint
 from .pipeline import StudyData, evaluate, reference_bank
 from .zoo import model_for
@@ -189,17 +190,20 @@ def seed_accuracies(results: dict[str, Any]) -> dict[str, list[float]]:
 
 def variant_table(trained: dict[str, Any], results: dict[str, Any],
                   extra: dict[str, dict] | None = None) -> pd.DataFrame:
-    """One row per variant: unseen Rota./Class. Acc. (%, mean over its seeds), median error,
-    queries, seeds with their Rota. Acc. and range, optimiser steps trained, run folders (zoo names for
-    zoo models), extras."""
+    """One row per variant: unseen Rota./Class. Acc. (%, mean over its seeds) with the Rota. Acc.'s 95 %
+    bootstrap interval over queries (``ci95 lo`` / ``ci95 hi``, of the seed mean: the seeds answer the same
+    queries), median error, queries, seeds with their Rota. Acc. and range, optimiser steps trained, run
+    folders (zoo names for zoo models), extras."""
     rows = []
     seeded = any(len(_as_list(v)) > 1 for v in results.values())
     for label, rs in results.items():
         rs, ts = _as_list(rs), _as_list(trained[label])
         mean = {k: float(np.mean([r["means"][k] for r in rs])) for k in ("rot_acc", "class_acc", "median_err_deg")}
         accs = [r["means"]["rot_acc"] for r in rs]
-        row = {"variant": label, "unseen rot_acc": mean["rot_acc"], "unseen class_acc": mean["class_acc"],
-               "unseen median_err_deg": mean["median_err_deg"], "n_queries": rs[0]["means"]["n_queries"]}
+        _, ci = accuracy_ci(seed_mean([r["per_query"] for r in rs]))
+        row = {"variant": label, "unseen rot_acc": mean["rot_acc"], "ci95 lo": ci[0], "ci95 hi": ci[1],
+               "unseen class_acc": mean["class_acc"], "unseen median_err_deg": mean["median_err_deg"],
+               "n_queries": rs[0]["means"]["n_queries"]}
         if seeded:
             row.update({"seeds": len(rs), "rot_acc per seed": ", ".join(f"{a:.1f}" for a in accs),
                         "seed range (pts)": float(max(accs) - min(accs)) if len(accs) > 1 else None})
