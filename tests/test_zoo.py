@@ -228,6 +228,7 @@ def test_long_preset_trains_the_zoo_recipes_runs():
     from helpers.study.parameters import configs_from
     from helpers.study.pipeline import _train_key
     from helpers.study.runner import preset_parameters
+    from helpers.study.variants import variant_config
 
     P = preset_parameters("long", "02_train")
     c = configs_from(P)
@@ -237,3 +238,7 @@ def test_long_preset_trains_the_zoo_recipes_runs():
     assert {k: v for k, v in asdict(data).items() if k not in ("workers", "cache_dir")} == \
         {k: v for k, v in asdict(r.data).items() if k not in ("workers", "cache_dir")}
     assert P["val_refs"] == r.val_refs and P["split"] == r.split
+    # Notebook 03 trains the 12,000-step models the quick preset's 03 evaluates (zoo_steps: 12000).
+    c3 = configs_from(preset_parameters("long", "03_evaluate"))
+    assert _train_key(c3.train) == _train_key(zoo.recipe("split1-12k").train)
+    assert _train_key(variant_config(c3.train, scales="global")) == _train_key(zoo.recipe("global-12k").train)
