@@ -106,6 +106,26 @@ def test_claims_file_from_a_report_folder(tmp_path):
     assert ids["fusion:adaptive_beats_avg"]["paper"] == pytest.approx(89.55 - 80.9)
     assert ids["fusion:adaptive_beats_avg"]["verdict"] == "within noise"
     assert build_claims(tmp_path / "missing") == []
+    assert not any(k.startswith("longer_budget") for k in ids)  # one budget: no budget claim
+
+
+def test_budget_claims_pair_the_longer_and_the_shortest_zoo_budget(tmp_path):
+    """Notebook 03 with zoo_steps: the same unseen / seen queries from the shortest-budget models, paired."""
+    rng = np.random.default_rng(3)
+    splits = {1: ["a", "b"], 2: ["c"]}
+    ev = tmp_path / "03_evaluate"
+    ev.mkdir()
+    ours = pd.concat([_pq(rng, splits, {o: 0.6 for o in "abc"}, part="unseen"),
+                      _pq(rng, splits, {o: 0.8 for o in "abc"}, part="seen")])
+    ours.to_csv(ev / "per_query_ours.csv", index=False)
+    short = ours.copy()
+    short.loc[short["part"] == "unseen", "rot_ok"] = False  # the longer budget answers more unseen queries
+    short.assign(steps=4000, main_steps=12000).to_csv(ev / "per_query_ours_short_budget.csv", index=False)
+    ids = {c["id"]: c for c in build_claims(tmp_path)}
+    u, s = ids["longer_budget_unseen"], ids["longer_budget_seen"]
+    assert "12000-step" in u["claim"] and "4000-step" in u["claim"] and "mean of 2 splits" in u["claim"]
+    assert u["verdict"] == "holds" and u["ours"] == pytest.approx(ids["unseen_rot_acc"]["ours"], abs=0.01)
+    assert s["ours"] == 0.0 and s["verdict"] == "within noise"  # the same answers on seen objects
 
 
 def test_ablation_claims_carry_the_seed_aware_verdict_and_paired_refcount_and_fast(tmp_path):

@@ -107,7 +107,7 @@ def evaluation_claims(d: Path) -> list[dict]:
         out.append(record("byo_rot_acc", f"bring your own: share of {byo['obj'].iloc[0]}'s {len(byo)} test photos "
                           f"answered within {threshold:g} deg from its mesh file alone ({label}; its references "
                           "only, %)", None, *accuracy_ci(byo), MEASURED))
-    return out + _baseline_claims(d, unseen)
+    return out + _baseline_claims(d, unseen) + _budget_claims(d, unseen, seen)
 
 
 def _baseline_claims(d: Path, unseen: pd.DataFrame) -> list[dict]:
@@ -128,6 +128,24 @@ def _baseline_claims(d: Path, unseen: pd.DataFrame) -> list[dict]:
         paper_diff = round(pb["Ours (paper)"] - pb["HOG"], 2) if pid == "hog" else None
         out.append(_diff_record(f"ours_minus_{pid}", f"ours beats {name} on unseen objects (splits {sp}, points, "
                                 "paired)", paper_diff, paired_difference(base, unseen[unseen["split"].isin(splits)])))
+    return out
+
+
+def _budget_claims(d: Path, unseen: pd.DataFrame, seen: pd.DataFrame) -> list[dict]:
+    """The longer zoo budget minus the shortest on the same unseen / seen queries, paired (notebook 03 with
+    ``zoo_steps``: ``per_query_ours_short_budget.csv``)."""
+    short = _read_csv(d / "per_query_ours_short_budget.csv")
+    if short is None:
+        return []
+    a, b = int(short["steps"].iloc[0]), int(short["main_steps"].iloc[0])
+    out = []
+    for part, main in (("unseen", unseen), ("seen", seen)):
+        s = short[short["part"] == part]
+        if len(s) and len(main):
+            n_sp = s["split"].nunique()
+            out.append(_diff_record(f"longer_budget_{part}", f"the zoo's {b}-step models beat its {a}-step ones on "
+                                    f"{part} objects (Rota. Acc., mean of {n_sp} splits, points, paired)", None,
+                                    paired_difference(s, main)))
     return out
 
 

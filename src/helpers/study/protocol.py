@@ -24,28 +24,34 @@ from ..search.retrieval import search_all
 from .pipeline import StudyData, encode_queries, evaluate, first, reference_bank
 
 
+PARTS = ("unseen", "seen", "occluded")
+
+
 def evaluate_split(model: Any, data: StudyData, split: int, search: SearchConfig, seen_queries: int = 0,
-                   occluded_queries: int = 0, device: str = "auto") -> dict[str, Any]:
+                   occluded_queries: int = 0, device: str = "auto", parts: tuple[str, ...] = PARTS) -> dict[str, Any]:
     """Unseen / seen / occluded-unseen results of one split's model.
 
-    ``seen_queries`` / ``occluded_queries`` cap the queries per object of those parts (0: all).
-    Returns {"model", "bank", "unseen", "seen", "occluded"} (each part an :func:`evaluate` dict).
+    ``seen_queries`` / ``occluded_queries`` cap the queries per object of those parts (0: all); ``parts``
+    chooses which of :data:`PARTS` are evaluated. Returns {"model", "bank", <part>: :func:`evaluate` dict}.
     """
+    if not parts or set(parts) - set(PARTS):
+        raise ValueError(f"evaluate_split: parts must be some of {PARTS}, got {parts!r}")
     m = data.manifest
     bank = reference_bank(model, data, m.object_names("train"), device=device, k_ac=search.k_ac)
     unseen, seen = m.split_objects(split), m.seen_objects(split)
+    queries = {"unseen": lambda: {n: data.test_q[n] for n in unseen},
+               "seen": lambda: {n: first(data.test_q[n], seen_queries) for n in seen},
+               "occluded": lambda: {n: first(data.occluded_q[n], occluded_queries) for n in unseen}}
     return {"model": model, "bank": bank,
-            "unseen": evaluate(model, bank, {n: data.test_q[n] for n in unseen}, search, device),
-            "seen": evaluate(model, bank, {n: first(data.test_q[n], seen_queries) for n in seen}, search, device),
-            "occluded": evaluate(model, bank, {n: first(data.occluded_q[n], occluded_queries) for n in unseen},
-                                 search, device)}
+            **{p: evaluate(model, bank, queries[p](), search, device) for p in PARTS if p in parts}}
 
 
 def split_tables(results: dict[int, dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """(per-object table, per-query table) of all splits and parts, with ``split`` and ``part`` columns."""
+    """(per-object table, per-query table) of all splits and the parts each evaluated, with ``split`` and
+    ``part`` columns."""
     per_object, per_query = [], []
     for s, r in results.items():
-        for part in ("unseen", "seen", "occluded"):
+        for part in (p for p in PARTS if p in r):
             df = r[part]["per_object"].reset_index()
             df.insert(0, "part", part)
             df.insert(0, "split", s)
