@@ -127,3 +127,29 @@ def test_provenance_names_each_commit_with_its_notebooks_after_a_partial_rerun(t
             in rep)
     (tmp_path / "z" / "03_evaluate" / "run.json").write_text(json.dumps({"git": {"commit": "aaa"}}))
     assert "notebooks ran at git commit `aaa`; " in build_report("z", root=tmp_path).read_text()
+
+
+def test_report_shows_notebook_03s_budget_comparison_with_its_claims(tmp_path):
+    """Section 3 carries the budget table and the paired longer-minus-shortest lines when 03 wrote them."""
+    import numpy as np
+    import pandas as pd
+
+    d = tmp_path / "b" / "03_evaluate"
+    d.mkdir(parents=True)
+    (d / "metrics.json").write_text(json.dumps({"table1": [{"split": "#1", "unseen rot_acc": 50.0}],
+                                                "table2": [{"method": "HOG", "rot_acc": 30.0}],
+                                                "held_out": {"rot_acc": 30.0, "class_acc": 60.0, "model": "all"}}))
+    ok = np.arange(40) < 20
+    ours = pd.DataFrame({"split": 1, "obj": "a", "query_id": [f"a:{i}" for i in range(40)], "part": "unseen",
+                         "rot_ok": ok, "class_ok": True})
+    ours.to_csv(d / "per_query_ours.csv", index=False)
+    ours.assign(rot_ok=np.arange(40) < 10, steps=4000, main_steps=12000).to_csv(
+        d / "per_query_ours_short_budget.csv", index=False)
+    pd.DataFrame([{"split": "#1", "unseen rot_acc, 4000 steps": 25.0, "unseen rot_acc, 12000 steps": 50.0}]).to_csv(
+        d / "budget_splits.csv", index=False)
+    rep = build_report("b", root=tmp_path).read_text()
+    assert "### Budget (the same queries, the zoo's shortest budget)" in rep and "unseen rot_acc, 4000 steps" in rep
+    assert "- the longer budget on unseen objects (longer minus shortest): +25.00 points" in rep
+    (d / "budget_splits.csv").unlink()
+    (d / "per_query_ours_short_budget.csv").unlink()
+    assert "### Budget" not in build_report("b", root=tmp_path).read_text()

@@ -283,11 +283,23 @@ def _eval(d: Path, claims: dict[str, dict]) -> list[str]:
                 f"**{hog['verdict']}**.", ""]
     out += _claim_line(claims, "ours_minus_hog", "ours beats HOG (ours minus HOG, paired)")
     out += _claim_line(claims, "ours_minus_global", "ours beats the Global descriptor (ours minus Global, paired)")
+    out += _budget(d, claims)
     out += ["", "![examples](03_evaluate/examples_unseen.png)", "", "![fusion maps](03_evaluate/fusion_maps.png)", ""]
     byo = _load(d / "byo.json")
     if byo:
         out += [_byo_line(byo, claims.get("byo_rot_acc")), "", "![byo](03_evaluate/byo_overlay.png)", ""]
     return out
+
+
+def _budget(d: Path, claims: dict[str, dict]) -> list[str]:
+    """Notebook 03's budget comparison (``budget_splits.csv``: the zoo's longer and shortest budget on the same
+    queries) with its paired claims; nothing when the notebook ran one budget."""
+    if not (d / "budget_splits.csv").exists():
+        return []
+    return ["", "### Budget (the same queries, the zoo's shortest budget)", "",
+            _md(pd.read_csv(d / "budget_splits.csv")), "",
+            *_claim_line(claims, "longer_budget_unseen", "the longer budget on unseen objects (longer minus shortest)"),
+            *_claim_line(claims, "longer_budget_seen", "the longer budget on seen objects (longer minus shortest)")]
 
 
 def _ablation(d: Path, title: str, fig: str, claim: str) -> list[str]:
