@@ -182,3 +182,19 @@ def test_c2f_claims_need_the_whole_interval_within_one_point(tmp_path):
     assert c["verdict"] == "reversed" and c["ci95"][1] < -1 and c["speedup_over_fast"] == 4.0
     assert h["ours"] == 0.0 and h["ci95"] == [0.0, 0.0] and h["verdict"] == "holds"
     assert h["speedup_over_fast"] == 2.0
+
+
+def test_baselines_pair_on_the_splits_ours_ran(tmp_path):
+    """Notebook 03 with splits [1]: HOG ran on all three splits (its calibration line keeps them), ours on
+    split #1 only, so ours minus HOG pairs split #1's queries."""
+    rng = np.random.default_rng(4)
+    ev = tmp_path / "03_evaluate"
+    ev.mkdir()
+    _pq(rng, {1: ["a", "b"]}, {"a": 0.7, "b": 0.7}, part="unseen").to_csv(ev / "per_query_ours.csv", index=False)
+    hog = _pq(rng, {1: ["a", "b"], 2: ["c"], 3: ["d"]}, {o: 0.3 for o in "abcd"})
+    hog.to_csv(ev / "per_query_hog.csv", index=False)
+    ids = {c["id"]: c for c in build_claims(tmp_path)}
+    assert "(splits #1,#2,#3, %)" in ids["hog_unseen_rot_acc"]["claim"]
+    assert "(splits #1, points, paired)" in ids["ours_minus_hog"]["claim"]
+    assert ids["ours_minus_hog"]["ours"] == pytest.approx(
+        paired_difference(hog[hog["split"] == 1], pd.read_csv(ev / "per_query_ours.csv"))["diff_pts"], abs=0.01)
