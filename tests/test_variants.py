@@ -48,21 +48,16 @@ def _pq(correct: np.ndarray, n_obj: int = 4) -> pd.DataFrame:
                          "err_deg": np.where(correct, 5.0, 90.0)})
 
 
-def _pq(n_ok: int, n: int = 50) -> pd.DataFrame:
-    """A per-query table of one object whose first ``n_ok`` of ``n`` queries are right."""
-    ok = np.arange(n) < n_ok
-    return pd.DataFrame({"query_id": [f"o:{i}" for i in range(n)], "obj": "o", "rot_ok": ok, "class_ok": True})
-
-
 def test_variant_table_rows():
     means = {"rot_acc": 10.0, "class_acc": 50.0, "median_err_deg": 80.0, "n_queries": 40}
-    res = {"a": {"means": means, "per_query": _pq(5)}, "b": {"means": means, "per_query": _pq(5)}}
+    five_of_50 = _pq(np.arange(50) < 5, n_obj=1)  # one object, the first 5 of its 50 queries right
+    res = {"a": {"means": means, "per_query": five_of_50}, "b": {"means": means, "per_query": five_of_50}}
     hist = {"best_epoch": 1, "history": [{"epoch": 1, "global_step": 15}, {"epoch": 2, "global_step": 30}]}
     zoo_entry = {"sha256": "ab" * 32, "steps": 4000, "best_step": 3200}
     trained = {"a": Trained(None, Path("/x/split1-abc"), {"history": hist}),
                "b": Trained(None, Path("/m/avg.pt"), {"zoo": "avg", "zoo_entry": zoo_entry})}
     t = variant_table(trained, res, extra={"a": {"paper": 80.9}, "b": {"paper": 70.0}})
-    lo, hi = accuracy_ci(_pq(5))[1]
+    lo, hi = accuracy_ci(five_of_50)[1]
     assert lo < 10.0 < hi  # the interval of 5 right answers out of 50 queries
     row = {"unseen rot_acc": 10.0, "ci95 lo": lo, "ci95 hi": hi, "unseen class_acc": 50.0,
            "unseen median_err_deg": 80.0, "n_queries": 40}
@@ -91,11 +86,11 @@ def test_with_seeds_gives_seeded_variants_consecutive_seeds_and_keeps_the_others
 
 def test_variant_table_with_seeds_shows_each_seed_and_the_range():
     res = {"a": [{"means": {"rot_acc": 10.0, "class_acc": 50.0, "median_err_deg": 80.0, "n_queries": 40},
-                  "per_query": _pq(5)},
+                  "per_query": _pq(np.arange(50) < 5, n_obj=1)},
                  {"means": {"rot_acc": 14.0, "class_acc": 52.0, "median_err_deg": 70.0, "n_queries": 40},
-                  "per_query": _pq(7)}],
+                  "per_query": _pq(np.arange(50) < 7, n_obj=1)}],
            "b": [{"means": {"rot_acc": 20.0, "class_acc": 60.0, "median_err_deg": 60.0, "n_queries": 40},
-                  "per_query": _pq(10)}]}
+                  "per_query": _pq(np.arange(50) < 10, n_obj=1)}]}
     tr = {"a": [Trained(None, Path("/x/split1-s0"), {}), Trained(None, Path("/x/split1-s1"), {})],
           "b": [Trained(None, Path("/x/split1-b"), {})]}
     t = variant_table(tr, res).set_index("variant")
@@ -103,7 +98,8 @@ def test_variant_table_with_seeds_shows_each_seed_and_the_range():
     assert t.loc["a", "rot_acc per seed"] == "10.0, 14.0" and t.loc["a", "run"] == "split1-s0, split1-s1"
     assert t.loc["b", "seeds"] == 1 and pd.isna(t.loc["b", "seed range (pts)"])
     # The interval is that of the seed mean (12 %): both seeds answer the same 50 queries.
-    seed_mean_pq = _pq(5).assign(rot_ok=(_pq(5)["rot_ok"].astype(float) + _pq(7)["rot_ok"]) / 2)
+    s0, s1 = res["a"][0]["per_query"], res["a"][1]["per_query"]
+    seed_mean_pq = s0.assign(rot_ok=(s0["rot_ok"].astype(float) + s1["rot_ok"]) / 2)
     assert [t.loc["a", "ci95 lo"], t.loc["a", "ci95 hi"]] == accuracy_ci(seed_mean_pq)[1]
     assert t.loc["a", "ci95 lo"] < 12.0 < t.loc["a", "ci95 hi"]
 

@@ -118,8 +118,8 @@ def _baseline_claims(d: Path, unseen: pd.DataFrame) -> list[dict]:
         base = _read_csv(d / f"per_query_{pid}.csv")
         if base is None:
             continue
-        sp = ",".join(f"#{s}" for s in sorted(base["split"].unique()))
         if pid == "hog":
+            sp = ",".join(f"#{s}" for s in sorted(base["split"].unique()))
             v, ci = accuracy_ci(base)
             lo, hi = HOG_BAND
             out.append(record("hog_unseen_rot_acc", f"HOG nearest neighbour, unseen Rota. Acc. (splits {sp}, %): "
