@@ -160,7 +160,7 @@ def _box_mean_1c2d2ee(padded, window: int):
 class _Variant:
     """Context manager: the training step of variant "A" (git 1c2d2ee) or "B" (today's code).
 
-    The only change to the training step since 1c2d2ee is ``helpers.net.model._box_mean``
+    The only change to the training step since 1c2d2ee is ``helpers.core.local_norm._box_mean``
     (``preprocess`` looks it up at call time), so A swaps the old 2-D pool in and
     restores today's on exit, even if the step raises.
     """
@@ -169,7 +169,7 @@ class _Variant:
         self.name = name
 
     def __enter__(self) -> "_Variant":
-        import helpers.net.model as hm
+        import helpers.core.local_norm as hm
 
         self._saved = hm._box_mean
         if self.name == "A":
@@ -177,7 +177,7 @@ class _Variant:
         return self
 
     def __exit__(self, *exc) -> None:
-        import helpers.net.model as hm
+        import helpers.core.local_norm as hm
 
         hm._box_mean = self._saved
 

@@ -65,7 +65,7 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
     # (the normalised output amplifies it where the local variance is ~0, e.g. black backgrounds),
     # and so do the losses after N steps; the A patch is undone afterwards.
     assert ab["loss_max_abs_diff_A_vs_B"] < 1e-4 and ab["preprocess"]["max_abs_diff"] < 1e-3
-    import helpers.net.model as hm
+    import helpers.core.local_norm as hm
     assert hm._box_mean.__name__ == "_box_mean"
     _positive(ab["preprocess"], "A_s_median", "B_s_median")
     _positive(ab["breakdown"], "data_s_per_step", "compute_s_per_step", "make_s_median")

@@ -68,9 +68,14 @@ def test_claims_file_from_a_report_folder(tmp_path):
     ev.mkdir()
     ours = pd.concat([_pq(rng, splits, p, part="unseen"), _pq(rng, splits, {o: 0.8 for o in "abcde"}, part="seen"),
                       _pq(rng, splits, {o: 0.3 for o in "abcde"}, part="occluded")])
-    ours.to_csv(ev / "per_query_ours.csv", index=False)
-    hog = _pq(rng, splits, {o: 0.3 for o in "abcde"})
-    hog.to_csv(ev / "per_query_hog.csv", index=False)
+    ours.assign(search="fast").to_csv(ev / "per_query_ours.csv", index=False)
+    hog = _pq(rng, splits, {o: 0.33 for o in "abcde"})
+    hog.assign(search="fast").to_csv(ev / "per_query_hog.csv", index=False)
+    # the other search, like with like: ours and HOG greedy on the same unseen queries
+    _pq(rng, splits, {o: 0.7 for o in "abcde"}, part="unseen").assign(search="greedy").to_csv(
+        ev / "per_query_ours_greedy.csv", index=False)
+    _pq(rng, splits, {o: 0.4 for o in "abcde"}).assign(search="greedy").to_csv(ev / "per_query_hog_greedy.csv",
+                                                                             index=False)
     glob_ = _pq(rng, {1: ["a", "b"]}, {o: 0.5 for o in "ab"})
     glob_.to_csv(ev / "per_query_global.csv", index=False)
     held = _pq(rng, {1: ["f", "g"]}, {"f": 0.9, "g": 0.1}).assign(model="all")
@@ -95,8 +100,13 @@ def test_claims_file_from_a_report_folder(tmp_path):
     u = ids["unseen_rot_acc"]
     assert u["ci95"][0] <= u["ours"] <= u["ci95"][1] and 45 < u["ours"] < 75
     assert ids["unseen_class_acc"]["ours"] == 100.0
-    assert ids["hog_unseen_rot_acc"]["verdict"] == "calibrated"  # ~30 %, inside 25-40
+    assert ids["hog_unseen_rot_acc"]["verdict"] == "calibrated"  # ~33 %, inside 28-38
+    assert "fast search, the study's" in ids["hog_unseen_rot_acc"]["claim"]
     assert ids["ours_minus_hog"]["verdict"] == "holds" and ids["ours_minus_hog"]["ci95"][0] > 0
+    assert "same search" in ids["ours_minus_hog"]["claim"]  # fast against fast
+    g = ids["ours_minus_hog_greedy"]  # greedy against greedy, paired: about 70 - 40 points
+    assert "greedy search, same search" in g["claim"] and g["verdict"] == "holds" and 20 < g["ours"] < 40
+    assert ids["hog_unseen_rot_acc_greedy"]["verdict"] == "measured" and 33 < ids["hog_unseen_rot_acc_greedy"]["ours"] < 47
     assert "#1" in ids["ours_minus_global"]["claim"]  # Global ran on split 1 only
     h = ids["held_out_rot_acc"]  # the named model on objects no split trains on, with its interval
     assert "(all;" in h["claim"] and h["ci95"][0] <= h["ours"] <= h["ci95"][1] and 35 < h["ours"] < 65
@@ -194,7 +204,7 @@ def test_baselines_pair_on_the_splits_ours_ran(tmp_path):
     hog = _pq(rng, {1: ["a", "b"], 2: ["c"], 3: ["d"]}, {o: 0.3 for o in "abcd"})
     hog.to_csv(ev / "per_query_hog.csv", index=False)
     ids = {c["id"]: c for c in build_claims(tmp_path)}
-    assert "(splits #1,#2,#3, %)" in ids["hog_unseen_rot_acc"]["claim"]
-    assert "(splits #1, points, paired)" in ids["ours_minus_hog"]["claim"]
+    assert "splits #1,#2,#3, %)" in ids["hog_unseen_rot_acc"]["claim"]
+    assert "splits #1, points, paired)" in ids["ours_minus_hog"]["claim"]
     assert ids["ours_minus_hog"]["ours"] == pytest.approx(
         paired_difference(hog[hog["split"] == 1], pd.read_csv(ev / "per_query_ours.csv"))["diff_pts"], abs=0.01)

@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .rotations import Symmetries
+
 
 @dataclass
 class ObjectViews:
@@ -21,7 +23,8 @@ class ObjectViews:
         rotations: (N, 3, 3) float32 ``R_m2c`` of each view.
         masks: optional (N, S, S) bool visible-object masks.
         kind: ``"reference"`` (object on black) or ``"query"`` (real-like).
-        symmetries: optional (K, 3, 3) model-frame symmetry rotations.
+        symmetries: optional (K, 3, 3) model-frame symmetry rotations, or a
+            :class:`helpers.core.rotations.Symmetries` (continuous axis).
         meta: free-form provenance (render parameters, cache key, ...).
     """
 
@@ -30,7 +33,7 @@ class ObjectViews:
     rotations: np.ndarray
     masks: np.ndarray | None = None
     kind: str = "reference"
-    symmetries: np.ndarray | None = None
+    symmetries: np.ndarray | Symmetries | None = None
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:

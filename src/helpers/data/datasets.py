@@ -208,11 +208,7 @@ def _load_complete(d: Path, spec: ViewSetSpec, manifest: Manifest, mmap: bool) -
         raise DamagedEntry(f"{d}/images.npy: expected shape {(spec.n, spec.side(), spec.side(), 3)}, "
                            f"got {images.shape}; delete {d} to re-render")
     touch(d / "meta.json")  # its modification time is the set's last use (python -m helpers.study.cache list)
-    entry = manifest.object(spec.object)
-    sym = np.eye(3)[None]
-    if entry.symmetries:
-        sym = np.concatenate([sym, np.asarray(entry.symmetries, dtype=np.float64).reshape(-1, 3, 3)])
-    return ObjectViews(spec.object, images, rots, masks, spec.kind, sym, meta)
+    return ObjectViews(spec.object, images, rots, masks, spec.kind, manifest.object(spec.object).symmetry_group(), meta)
 
 
 SET_FILES = ("images.npy", "masks.npy", "rotations.npy")

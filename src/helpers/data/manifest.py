@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import importlib.util
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from ..core.fileio import sha256_file
+from ..core.rotations import Symmetries
 from ..core.paths import default_manifest
 
 ROLES_OBJECT = ("train", "held-out")
@@ -70,9 +72,16 @@ class ObjectEntry:
     licence: str
     description: str
     symmetries: tuple = field(default=())
+    symmetry_axes: tuple = field(default=())
 
     def files(self) -> tuple[FileEntry, ...]:
         return (self.mesh,) + self.extra_files
+
+    def symmetry_group(self) -> np.ndarray | Symmetries:
+        """The declared symmetry group (model frame): (K, 3, 3) rotations with the identity first, or a
+        :class:`helpers.core.rotations.Symmetries` when a continuous axis is declared."""
+        disc = np.concatenate([np.eye(3)[None], np.asarray(self.symmetries, dtype=np.float64).reshape(-1, 3, 3)])
+        return Symmetries(disc, np.asarray(self.symmetry_axes, np.float64)) if self.symmetry_axes else disc
 
 
 @dataclass(frozen=True)
@@ -222,11 +231,11 @@ def _load_manifest_cached(path_s: str, _mtime: int) -> Manifest:
             raise ManifestError(f"{w}: color should be three floats in [0, 1]")
         objects.append(ObjectEntry(name, role, split, src, mesh, extras,
                                    None if color is None else tuple(float(c) for c in color),
-                                   o.get("licence", src.licence), o.get("description", ""),
-                                   tuple(o.get("symmetries", []) or [])))
+                                   o.get("licence", src.licence), o.get("description", "")))
     names = [o.name for o in objects]
     if len(set(names)) != len(names):
         raise ManifestError(f"{where}: duplicate object names")
+    objects = _with_symmetries(objects, raw.get("symmetries"), where)
     backgrounds = []
     for i, b in enumerate(raw.get("backgrounds", []) or []):
         w = f"{where}: backgrounds[{i}]"
@@ -240,6 +249,35 @@ def _load_manifest_cached(path_s: str, _mtime: int) -> Manifest:
         backgrounds.append(BackgroundEntry(_req(b, "name", w), split, src, _file(_req(b, "file", w, dict), src.module, w),
                                            b.get("licence", src.licence)))
     return Manifest(path, sources, tuple(objects), tuple(backgrounds), _parts(raw.get("parts"), where))
+
+
+def _with_symmetries(objects: list[ObjectEntry], raw: dict | None, where: str) -> list[ObjectEntry]:
+    """Attach the ``symmetries`` section (written by ``python -m helpers.data.symmetry --write``) to the objects."""
+    if raw is None:
+        return objects
+    w = f"{where}: symmetries"
+    decl = _req(raw, "objects", w, dict)
+    names = {o.name for o in objects}
+    unknown = sorted(set(decl) - names)
+    if unknown:
+        raise ManifestError(f"{w}: objects {unknown} are not in the manifest's objects")
+    out = []
+    for o in objects:
+        d = decl.get(o.name) or {}
+        disc = d.get("discrete", []) or []
+        axes = [c.get("axis") if isinstance(c, dict) else None for c in d.get("continuous", []) or []]
+        for i, r in enumerate(disc):
+            m = np.asarray(r, dtype=np.float64).reshape(-1)
+            if m.size != 9 or not np.allclose(m.reshape(3, 3) @ m.reshape(3, 3).T, np.eye(3), atol=1e-4):
+                raise ManifestError(f"{w}.objects.{o.name}.discrete[{i}]: expected a 3x3 rotation (9 numbers, "
+                                    f"row-major), got {r!r}")
+        for i, a in enumerate(axes):
+            if a is None or len(a) != 3 or not np.linalg.norm(np.asarray(a, dtype=np.float64)) > 0:
+                raise ManifestError(f"{w}.objects.{o.name}.continuous[{i}]: expected {{axis: [x, y, z]}} with a "
+                                    f"non-zero axis, got {d['continuous'][i]!r}")
+        out.append(replace(o, symmetries=tuple(tuple(float(x) for x in r) for r in disc),
+                           symmetry_axes=tuple(tuple(float(x) for x in a) for a in axes)))
+    return out
 
 
 def _parts(raw: dict | None, where: str) -> PartsSection | None:

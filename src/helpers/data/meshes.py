@@ -10,6 +10,7 @@ manifest colour.
 from __future__ import annotations
 
 import os
+from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +34,8 @@ class ObjectMesh:
         diameter: largest vertex-to-vertex distance, metres.
         textured: True if a texture image is attached.
         sha256: checksum of the source mesh file (part of render cache keys).
-        symmetries: (K, 3, 3) model-frame symmetry rotations (identity first).
+        symmetries: (K, 3, 3) model-frame symmetry rotations (identity first), or a
+            :class:`helpers.core.rotations.Symmetries` for a continuous axis (the manifest's declaration).
     """
 
     name: str
@@ -41,7 +43,7 @@ class ObjectMesh:
     diameter: float
     textured: bool
     sha256: str
-    symmetries: np.ndarray
+    symmetries: Any
 
 
 def mesh_diameter(vertices: np.ndarray) -> float:
@@ -122,7 +124,4 @@ def load_object(name: str, manifest: Manifest | None = None, diameter: float = D
             raise ManifestError(f"object {name!r}: manifest says textured (no colour) but {path} loaded without a texture")
         textured = True
     mesh = normalise(mesh, diameter)
-    sym = np.eye(3)[None]
-    if entry.symmetries:
-        sym = np.concatenate([sym, np.asarray(entry.symmetries, dtype=np.float64).reshape(-1, 3, 3)])
-    return ObjectMesh(name, mesh, diameter, textured, entry.mesh.sha256, sym)
+    return ObjectMesh(name, mesh, diameter, textured, entry.mesh.sha256, entry.symmetry_group())

@@ -73,11 +73,27 @@ def _as_record(r: Any, i: int) -> Record:
     raise TypeError(f"record {i}: expected a Record or a mapping, got {type(r).__name__}")
 
 
+def rotation_text(R: np.ndarray) -> str:
+    """A (3, 3) rotation as 9 space-separated numbers, row-major (a per-query CSV cell)."""
+    return " ".join(f"{x:.6f}" for x in np.asarray(R, dtype=np.float64).reshape(-1))
+
+
+def rotations_from_text(cells: Iterable[str]) -> np.ndarray:
+    """(N, 3, 3) rotations from :func:`rotation_text` cells."""
+    out = [np.array(str(c).split(), dtype=np.float64) for c in cells]
+    bad = [i for i, r in enumerate(out) if r.size != 9]
+    if bad:
+        raise ValueError(f"rotations_from_text: rows {bad[:5]} do not hold 9 numbers")
+    return np.stack(out).reshape(-1, 3, 3) if out else np.zeros((0, 3, 3))
+
+
 def per_query_table(records: Iterable[Record | Mapping], threshold_deg: float = 30.0) -> pd.DataFrame:
-    """One row per query: obj, pred_obj, query_id, class_ok, err_deg, rot_ok.
+    """One row per query: obj, pred_obj, query_id, class_ok, err_deg, rot_ok, R_est, R_gt.
 
     ``err_deg`` compares R_est with R_gt under the TRUE object's symmetries,
-    whether or not the predicted object is right.
+    whether or not the predicted object is right. ``R_est`` and ``R_gt`` keep both
+    rotations (:func:`rotation_text`), so a table can be scored again under other
+    symmetries without a new search (:func:`rescore`).
     """
     recs = [_as_record(r, i) for i, r in enumerate(records)]
     if not recs:
@@ -96,7 +112,29 @@ def per_query_table(records: Iterable[Record | Mapping], threshold_deg: float = 
     df["class_ok"] = df["obj"] == df["pred_obj"]
     df["err_deg"] = errs
     df["rot_ok"] = df["class_ok"] & (df["err_deg"] < threshold_deg)
+    df["R_est"] = [rotation_text(r.R_est) for r in recs]
+    df["R_gt"] = [rotation_text(r.R_gt) for r in recs]
     return df
+
+
+def rescore(per_query: pd.DataFrame, groups: Mapping[str, Any], threshold_deg: float = 30.0) -> pd.DataFrame:
+    """A per-query table scored again from its own R_est / R_gt columns under ``groups``
+    (true object name -> its symmetry group, as :attr:`ObjectViews.symmetries`; absent: none).
+
+    Returns a copy with ``err_deg`` and ``rot_ok`` recomputed; ``class_ok`` is kept.
+    """
+    missing = [c for c in ("obj", "class_ok", "R_est", "R_gt") if c not in per_query.columns]
+    if missing:
+        raise ValueError(f"rescore: the table lacks columns {missing} (tables written before the rotations "
+                         "were kept need a new search)")
+    out = per_query.copy()
+    R_est, R_gt = rotations_from_text(out["R_est"]), rotations_from_text(out["R_gt"])
+    err = np.empty(len(out))
+    for obj, idx in out.groupby("obj", sort=False).indices.items():
+        err[idx] = rotation_errors_deg(R_est[idx], R_gt[idx], groups.get(obj))
+    out["err_deg"] = err
+    out["rot_ok"] = out["class_ok"].astype(bool) & (out["err_deg"] < threshold_deg)
+    return out
 
 
 def evaluate_predictions(records: Iterable[Record | Mapping], threshold_deg: float = 30.0

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import tempfile
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -37,7 +37,8 @@ from ..core.rotations import geodesic_deg, haar_uniform
 from ..core.views import ObjectViews
 from ..data.meshes import ObjectMesh, load_mesh_file, normalise, set_color
 from ..data.render import render_reference
-from ..evaluation.metrics import rotation_errors_deg
+from ..data.symmetry.rule import RULE_VERSION, SymmetryRule, describe, find_symmetries
+from ..evaluation.metrics import rotation_errors_deg, rotation_text
 from ..search.features import FeatureCache, encode_batch, encode_views, model_fingerprint
 from . import zoo  # here, not at the top: the zoo pulls in training, which the library part never needs
 from .figures import _plt, save
@@ -56,6 +57,10 @@ class ByoResult:
         query_image: (S, S, 3) uint8 query as fed to the network.
         alternatives: the next best references, best first: {"index", "score",
             "R_m2c" (3x3 list), "deg_from_best" (geodesic angle to ``R_m2c``, degrees)}.
+        symmetries: what the symmetry rule found on the mesh (:func:`mesh_symmetries`): {"discrete": [{"axis",
+            "angle_deg"}], "continuous": [{"axis"}]} (model frame), or None when not asked for.
+        equivalents: ``R_m2c @ S`` (3x3 lists) for each declared discrete symmetry S: rotations that look the
+            same, as right as ``R_m2c`` (a continuous axis adds every turn about it).
     """
 
     R_m2c: np.ndarray
@@ -64,6 +69,8 @@ class ByoResult:
     ref_image: np.ndarray
     query_image: np.ndarray
     alternatives: list[dict] = field(default_factory=list)
+    symmetries: dict | None = None
+    equivalents: list = field(default_factory=list)
 
 
 ALPHA_MODES = ("composite", "crop")
@@ -254,6 +261,37 @@ def reference_set(model, mesh_path: str | os.PathLike, n_refs: int = 1024, rende
     return ReferenceSet(refs, R, feats, dev)
 
 
+def mesh_symmetries(mesh_path: str | os.PathLike, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
+                    cache: str | os.PathLike | None = None, rule: SymmetryRule = SymmetryRule()) -> dict:
+    """The symmetry rule of the benchmark (:mod:`helpers.data.symmetry`) applied to a mesh file, cached by the
+    file's sha256, the colour and the rule: {"discrete": [{"axis", "angle_deg", "R"}], "continuous": [{"axis"}],
+    "candidates": the evidence}. Tens of seconds the first time, read back afterwards."""
+    mesh_path = Path(mesh_path)
+    sha = sha256_file(mesh_path)
+    key = stable_hash({"sha": sha, "color": color, "rule": asdict(rule), "v": RULE_VERSION})
+    path = cache_dir(cache) / "byo" / f"{mesh_path.stem}-symmetry-{key}.json"
+    if path.is_file():
+        try:
+            return read_json(path)
+        except ValueError:
+            pass  # a damaged file: computed again below and replaced
+    res = find_symmetries(custom_object(mesh_path, color, sha256=sha), rule)
+    out = {"discrete": [{"axis": describe(R)[0], "angle_deg": describe(R)[1], "R": R.tolist()} for R in res.discrete],
+           "continuous": [{"axis": [float(x) for x in a]} for a in res.axes],
+           "candidates": res.evidence["candidates"], "rule_version": RULE_VERSION}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, out)
+    return out
+
+
+def with_symmetries(res: ByoResult, sym: dict) -> ByoResult:
+    """``res`` with the mesh's symmetries and the rotations equivalent to its answer under them."""
+    res.symmetries = {"discrete": [{k: d[k] for k in ("axis", "angle_deg")} for d in sym["discrete"]],
+                      "continuous": sym["continuous"]}
+    res.equivalents = [(res.R_m2c @ np.asarray(d["R"], np.float64)).tolist() for d in sym["discrete"]]
+    return res
+
+
 def answer(model, rs: ReferenceSet, query: np.ndarray, n_alternatives: int = 4) -> ByoResult:
     """Retrieve one (S, S, 3) uint8 query crop (as :func:`load_query_image` returns it) among the
     references of ``rs``: the best reference's rotation and the next ``n_alternatives``."""
@@ -275,8 +313,11 @@ def answer(model, rs: ReferenceSet, query: np.ndarray, n_alternatives: int = 4) 
 def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.PathLike, n_refs: int = 1024,
                       render_size: int = 160, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
                       device: str = "auto", cache: str | os.PathLike | None = None,
-                      alpha: str = "composite", n_alternatives: int = 4) -> ByoResult:
+                      alpha: str = "composite", n_alternatives: int = 4, symmetries: bool = True) -> ByoResult:
     """Estimate the rotation of the object in ``query_path`` from its mesh ``mesh_path``.
+
+    With ``symmetries``, the benchmark's symmetry rule also runs on the mesh (:func:`mesh_symmetries`, cached),
+    and the answer carries the symmetries found and the rotations equivalent to it.
 
     The references and their features come from :func:`reference_set` (cached), so a second
     query of the same object with the same model costs only the query's encoding and the search.
@@ -285,7 +326,8 @@ def estimate_rotation(model, mesh_path: str | os.PathLike, query_path: str | os.
     size = int(model.cfg.image_size) if hasattr(model, "cfg") else 128
     query = load_query_image(query_path, size, alpha)  # a bad crop is reported before any rendering
     rs = reference_set(model, mesh_path, n_refs, render_size, color, device, cache)
-    return answer(model, rs, query, n_alternatives)
+    res = answer(model, rs, query, n_alternatives)
+    return with_symmetries(res, mesh_symmetries(mesh_path, color, cache)) if symmetries else res
 
 
 def overlay_figure(res: ByoResult, path: str | os.PathLike) -> Path:
@@ -314,7 +356,7 @@ def answer_views(model, mesh_path: str | os.PathLike, views: ObjectViews, n: int
 
     Returns (per-query table as :func:`helpers.evaluation.metrics.per_query_table` names its columns:
     obj, query_id, class_ok (True: the object is given), err_deg, rot_ok (err_deg < ``threshold_deg``),
-    and score, reference; one ByoResult per query, in order)."""
+    R_est, R_gt, and score, reference; one ByoResult per query, in order)."""
     if n < 0:
         raise ValueError(f"answer_views: n expected 0 (all views) or a positive count, got {n}")
     n = len(views) if n == 0 else min(int(n), len(views))
@@ -332,7 +374,9 @@ def answer_views(model, mesh_path: str | os.PathLike, views: ObjectViews, n: int
                               views.symmetries)
     table = pd.DataFrame({"obj": views.name, "query_id": np.arange(n), "class_ok": True, "err_deg": err,
                           "rot_ok": err < threshold_deg, "score": [r.score for r in results],
-                          "reference": [r.ref_index for r in results]})
+                          "reference": [r.ref_index for r in results],
+                          "R_est": [rotation_text(r.R_m2c) for r in results],
+                          "R_gt": [rotation_text(R) for R in views.rotations[:n]]})
     return table, results
 
 
@@ -355,6 +399,20 @@ def _quaternion_wxyz(R: np.ndarray) -> list[float]:
 
     x, y, z, w = Rotation.from_matrix(R).as_quat()
     return [float(w), float(x), float(y), float(z)]
+
+
+def _print_symmetries(res: ByoResult) -> None:
+    sym = res.symmetries or {"discrete": [], "continuous": []}
+    if not sym["discrete"] and not sym["continuous"]:
+        print("symmetries (helpers.data.symmetry's rule on the mesh): none; the answer is the only right one")
+        return
+    turns = [f"{d['angle_deg']:g} deg about {d['axis']}" for d in sym["discrete"]]
+    turns += [f"any turn about {c['axis']}" for c in sym["continuous"]]
+    print("symmetries (helpers.data.symmetry's rule on the mesh, model frame): " + "; ".join(turns))
+    for R, d in zip(res.equivalents, sym["discrete"]):
+        print(f"  equally right, R_m2c @ ({d['angle_deg']:g} deg about {d['axis']}):")
+        for row in R:
+            print("    " + "  ".join(f"{v:+.4f}" for v in row))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -389,7 +447,8 @@ def main(argv: list[str] | None = None) -> int:
         overlay_figure(res, a.out)
     out = {"model": name, "R_m2c": res.R_m2c.tolist(), "quaternion_wxyz": _quaternion_wxyz(res.R_m2c),
            "score": res.score, "reference": res.ref_index, "n_references": a.refs,
-           "alternatives": res.alternatives, "seconds": time.perf_counter() - t0,
+           "alternatives": res.alternatives, "symmetries": res.symmetries, "equivalent_R_m2c": res.equivalents,
+           "seconds": time.perf_counter() - t0,
            **({"overlay": a.out} if a.out else {})}
     if a.json:
         print(json.dumps(out, indent=1))
@@ -401,6 +460,7 @@ def main(argv: list[str] | None = None) -> int:
     print("quaternion (w, x, y, z): " + ", ".join(f"{v:+.4f}" for v in out["quaternion_wxyz"]))
     print("next best: " + "; ".join(f"#{x['index']} score {x['score']:.3f} at {x['deg_from_best']:.0f} deg"
                                     for x in res.alternatives))
+    _print_symmetries(res)
     if a.out:
         print(f"overlay: {a.out}")
     print(f"{out['seconds']:.1f} s")

@@ -21,7 +21,8 @@ from typing import Any
 
 import yaml
 
-from ..core.configs import QUERY_STYLES, AugmentConfig, DataConfig, ModelConfig, SearchConfig, TrainConfig, parse_scales
+from ..core.configs import (QUERY_STYLES, AugmentConfig, DataConfig, ModelConfig, SearchConfig, TrainConfig,
+                            paper_ratio_search, parse_scales)
 from ..core.paths import REPO_ROOT, is_checkpoint_choice, repo_path
 from ..data.manifest import load_manifest
 from ..evaluation.paper import COMPONENT_LABELS
@@ -130,7 +131,7 @@ _LEVELS = ("32", "16", "13")
 # name -> minimum allowed integer value
 _MIN_INT = {
     "image_size": 64, "render_size": 64, "n_references": 1, "n_train_queries": 1, "n_val_queries": 1,
-    "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 1, "fps_k": 1,
+    "n_test_queries": 1, "epochs": 1, "batch_size": 1, "val_every": 1, "val_refs": 1, "k_ac": 0, "fps_k": 0,
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
     "occluded_queries": 0, "eval_refs": 0, "byo_queries": 0, "zoo_steps": 0,
@@ -212,8 +213,13 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         v = P.get(name)  # coarse-to-fine candidates (07): chosen among on held-out views of seen objects
         if v is not None and ((not v and not may_be_empty) or len(set(v)) != len(v) or any(x < 1 for x in v)):
             raise _err(notebook, name, f"a list of distinct ints >= 1{' (empty: skip)' if may_be_empty else ''}", v)
-    if "coarse_k" in P and "k_ac" in P and any(x >= P["k_ac"] for x in P["coarse_k"]):
-        raise _err(notebook, "coarse_k", f"candidates < k_ac={P['k_ac']} (a coarse round smaller than the anchors)",
+    fv = P.get("fast_variants")  # 07: named fast-retrieval budgets beside the paper-ratio default
+    if fv is not None and any(not isinstance(x, list) or len(x) != 2 or not all(isinstance(i, int) and i >= 1 for i in x)
+                              for x in fv):
+        raise _err(notebook, "fast_variants", "a list of [k_ac, fps_k] pairs of ints >= 1", fv)
+    k_ac = _effective_k_ac(P)
+    if "coarse_k" in P and k_ac is not None and any(x >= k_ac for x in P["coarse_k"]):
+        raise _err(notebook, "coarse_k", f"candidates < k_ac={k_ac} (a coarse round smaller than the anchors)",
                    P["coarse_k"])
     if "c2f_min_agreement" in P and not 0.0 < P["c2f_min_agreement"] <= 1.0:
         raise _err(notebook, "c2f_min_agreement", "a share in (0, 1]", P["c2f_min_agreement"])
@@ -354,7 +360,14 @@ def configs_from(P: dict[str, Any]) -> StudyConfigs:
                             occlusion=P["train_occlusion"], augment=AugmentConfig(), val_every=P["val_every"],
                             model=model)
     search = None
-    if has(("k_ac", "fps_k")):
-        method = P.get("eval_method", "fast")
-        search = SearchConfig(method=method, k_ac=P["k_ac"], fps_k=P["fps_k"], group=P.get("group", 1024))
+    if has(("k_ac", "fps_k", "n_references")):
+        search = paper_ratio_search(P["n_references"], P["k_ac"], P["fps_k"], method=P.get("eval_method", "fast"),
+                                    group=P.get("group", 1024))
     return StudyConfigs(data, train, search)
+
+
+def _effective_k_ac(P: dict[str, Any]) -> int | None:
+    """The anchors per object fast retrieval will use: ``k_ac``, or the paper's ratio of ``n_references`` at 0."""
+    if "k_ac" not in P or "n_references" not in P:
+        return None
+    return paper_ratio_search(P["n_references"], P["k_ac"], P["fps_k"] if "fps_k" in P else 0).k_ac

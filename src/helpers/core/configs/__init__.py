@@ -8,16 +8,19 @@ step below takes them, never the parameter dict. All are plain dataclasses that 
 * :class:`DataConfig`: sizes of the rendered benchmark.
 * :class:`ModelConfig` (+ level geometry): the network's architecture switches.
 * :class:`AugmentConfig`, :class:`TrainConfig`: query augmentation and training.
-* :class:`SearchConfig`: retrieval; :class:`HogConfig`: the HOG baseline.
+* :class:`SearchConfig` (+ :func:`paper_ratio_search`, the paper's budget ratios): retrieval;
+  :class:`HogConfig`: the HOG baseline.
 * :class:`TlessConfig`: sizes of the T-LESS-like set.
 """
 
 from .data import QUERY_STYLES, SCENES, DataConfig, QueryStyle, RenderConfig, TlessConfig
 from .model import FUSIONS, LEVELS, ModelConfig, level_shapes, parse_scales
-from .search import GREEDY, SCHEDULES, SEARCH_METHODS, HogConfig, SearchConfig
+from .search import (GREEDY, PAPER_ANCHOR_RATIO, PAPER_FPS_RATIO, SCHEDULES, SEARCH_METHODS, HogConfig, SearchConfig,
+                     paper_ratio_search)
 from .train import LR_SCHEDULES, RANDOM_REF, SELECT_ON, AugmentConfig, TrainConfig
 
 __all__ = ["QUERY_STYLES", "SCENES", "DataConfig", "QueryStyle", "RenderConfig", "TlessConfig",
            "FUSIONS", "LEVELS", "ModelConfig", "level_shapes", "parse_scales",
-           "GREEDY", "SCHEDULES", "SEARCH_METHODS", "HogConfig", "SearchConfig",
+           "GREEDY", "PAPER_ANCHOR_RATIO", "PAPER_FPS_RATIO", "SCHEDULES", "SEARCH_METHODS", "HogConfig",
+           "SearchConfig", "paper_ratio_search",
            "LR_SCHEDULES", "RANDOM_REF", "SELECT_ON", "AugmentConfig", "TrainConfig"]

@@ -61,6 +61,22 @@ class SearchConfig:
 #: Exhaustive search (every reference of every object): what the HOG baseline and the ablations use.
 GREEDY = SearchConfig(method="greedy")
 
+#: The paper's fast-retrieval budget as ratios: 1,024 anchors of 10,000 references per object, and 256
+#: references scored per refinement step out of 1,024 anchors.
+PAPER_ANCHOR_RATIO = 1024 / 10000
+PAPER_FPS_RATIO = 256 / 1024
+
+
+def paper_ratio_search(n_refs: int, k_ac: int = 0, fps_k: int = 0, method: str = "fast", **kw) -> SearchConfig:
+    """A :class:`SearchConfig` whose ``k_ac`` / ``fps_k`` default (0) to the paper's ratios for ``n_refs``
+    references per object: k_ac = round(n_refs x 0.1024), fps_k = round(k_ac / 4), each at least 1.
+    A positive ``k_ac`` or ``fps_k`` is taken as given (a named variant)."""
+    if not isinstance(n_refs, int) or n_refs < 1:
+        raise ValueError(f"paper_ratio_search: n_refs must be a positive int, got {n_refs!r}")
+    k = k_ac if k_ac > 0 else max(1, round(n_refs * PAPER_ANCHOR_RATIO))
+    f = fps_k if fps_k > 0 else max(1, round(k * PAPER_FPS_RATIO))
+    return SearchConfig(method=method, k_ac=k, fps_k=f, **kw)
+
 
 @dataclass(frozen=True)
 class HogConfig:
