@@ -31,9 +31,16 @@ def test_cli_finds_the_rotation_of_a_rendered_view_and_names_bad_paths(tmp_path,
     assert abs(w * w + x * x + y * y + z * z - 1) < 1e-6
     assert len(res["alternatives"]) == 4 and all(a["score"] <= res["score"] for a in res["alternatives"])
     assert out_png.stat().st_size > 0
+    # the benchmark's symmetry rule on the user's mesh (racecar: the manifest declares a half-turn for it), and
+    # the answers as right as R_m2c under what it found
+    sym = res["symmetries"]
+    assert len(sym["discrete"]) >= 1 and len(res["equivalent_R_m2c"]) == len(sym["discrete"])
+    for d, E in zip(sym["discrete"], res["equivalent_R_m2c"]):
+        assert 45.0 <= d["angle_deg"] <= 315.0
+        assert abs(geodesic_deg(np.array(E), np.array(res["R_m2c"])) - min(d["angle_deg"], 360 - d["angle_deg"])) < 1e-3
     assert byo.main(args) == 0  # text form, second call from the cache
     text = capsys.readouterr().out
-    assert "quaternion (w, x, y, z)" in text and "next best" in text
+    assert "quaternion (w, x, y, z)" in text and "next best" in text and "equally right" in text
     assert byo.main([str(tmp_path / "nope.obj"), str(crop), "--model", "split1", "--device", "cpu"]) == 2
     assert "nope.obj does not exist" in capsys.readouterr().err
     assert byo.main([str(mesh), str(tmp_path / "nope.png"), "--model", "split1", "--device", "cpu"]) == 2

@@ -164,7 +164,9 @@ def test_ablation_claims_carry_the_seed_aware_verdict_and_paired_refcount_and_fa
     assert a["verdict"] == "within seed spread" and a["seed_spread_pts"] == 5.0 and a["seeds"] == [2, 2]
     assert ids["fusion:seed_noise:avg"]["verdict"] == "measured" and ids["fusion:seed_noise:avg"]["ours"] == 5.0
     r = ids["refcount_accuracy_rises"]
-    assert r["verdict"] == "holds" and r["ci95"][0] > 0 and "paired" in r["claim"]
+    assert r["verdict"] == "holds" and r["ci95"][0] > 0 and "paired" in r["claim"] and "greedy" in r["claim"]
+    assert ids["refcount_step:32-512"]["ours"] == r["ours"]  # two counts: the one step is the whole rise
+    assert "refcount_accuracy_rises_fast" not in ids  # no fast rows in this table
     g = ids["greedy_rot_acc"]  # the greedy row's own accuracy with its interval
     assert g["ours"] == pytest.approx(100 * few["rot_ok"].mean()) and g["ci95"][0] <= g["ours"] <= g["ci95"][1]
     f = ids["fast_minus_greedy"]
@@ -172,6 +174,27 @@ def test_ablation_claims_carry_the_seed_aware_verdict_and_paired_refcount_and_fa
     sp = ids["fast_speedup"]  # 10x on every query: the interval is [10, 10]
     assert sp["ours"] == 10.0 and sp["ci95"] == [10.0, 10.0] and sp["verdict"] == "holds"
     assert "c2f_minus_fast" not in ids  # notebook 07 without coarse-to-fine rows
+
+
+def test_refcount_claims_step_by_step_for_both_searches(tmp_path):
+    rng = np.random.default_rng(6)
+    refc = tmp_path / "06_reference_count"
+    refc.mkdir()
+    base = _pq(rng, {1: ["a", "b"]}, {"a": 0.2, "b": 0.2}, n=200)
+    rows = []
+    for k, c in enumerate((128, 512, 2048)):
+        for how, sfx in (("greedy", ""), ("fast", "_fast")):
+            f = base.copy()
+            f["rot_ok"] = f["rot_ok"] | (rng.random(len(f)) < 0.25 * k)  # each step adds about a quarter
+            f.to_csv(refc / f"per_query_{c}refs{sfx}.csv", index=False)
+            rows.append({"refs_per_object": c, "search": how, "unseen rot_acc": 100 * f["rot_ok"].mean()})
+    (refc / "metrics.json").write_text(json.dumps({"table": rows}))
+    ids = {c["id"]: c for c in build_claims(tmp_path)}
+    for sfx in ("", "_fast"):
+        assert ids[f"refcount_accuracy_rises{sfx}"]["verdict"] == "holds"
+        for step in ("128-512", "512-2048"):
+            c = ids[f"refcount_step{sfx}:{step}"]
+            assert c["verdict"] == "holds" and 5 < c["ours"] < 40, (sfx, step, c)
 
 
 def test_c2f_claims_need_the_whole_interval_within_one_point(tmp_path):

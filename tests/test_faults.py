@@ -38,21 +38,36 @@ def test_bad_values_stop_the_parameter_check(name, value, match):
 def test_bad_variant_values_are_named():
     with pytest.raises(ParameterError, match="bad: \\['attention'\\]"):
         check_parameters("05_ablation_fusion", {"variants": ["avg", "attention"]})
+    with pytest.raises(ParameterError, match="reference_counts' expects a non-empty ascending list"):
+        check_parameters("06_reference_count", {"reference_counts": [48, 6]})
     with pytest.raises(ParameterError, match="reference_counts"):
-        check_parameters("06_reference_count", {"reference_counts": [6, 4800]})
+        check_parameters("06_reference_count", {"reference_counts": [0, 6]})
+    check_parameters("06_reference_count", {"reference_counts": [6, 4800]})  # the sweep renders its own set
 
 
 @pytest.mark.parametrize("value,match", [
     ({"coarse_k": [8, 8]}, "'coarse_k' expects a list of distinct ints >= 1"),
-    ({"coarse_k": [16]}, "'coarse_k' expects candidates < k_ac=16"),  # smoke k_ac is 16
+    ({"coarse_k": [5]}, "'coarse_k' expects candidates < k_ac=5"),  # smoke: the paper ratio of 48 references
     ({"refine_objects": []}, "'refine_objects' expects a list of distinct ints >= 1, got"),
     ({"halving_refine_objects": [0]}, "'halving_refine_objects' expects"),
     ({"c2f_min_agreement": 1.5}, "'c2f_min_agreement' expects a share in"),
+    ({"fast_variants": [[8]]}, "'fast_variants' expects a list of \\[k_ac, fps_k\\] pairs"),
+    ({"fast_variants": [[8, 0]]}, "'fast_variants' expects a list of \\[k_ac, fps_k\\] pairs"),
 ])
 def test_bad_coarse_to_fine_candidates_are_named(value, match):
     with pytest.raises(ParameterError, match=match):
         check_parameters("07_fast_vs_greedy", value)
     check_parameters("07_fast_vs_greedy", {"coarse_k": [], "halving_refine_objects": []})  # empty: rows skipped
+
+
+@pytest.mark.parametrize("value,match", [
+    ({"report_dir": "/nonexistent/report"}, "'report_dir' expects '' or an existing report folder"),
+    ({"old_k_ac": 0}, "'old_k_ac' expects an int >= 1"),
+    ({"old_fps_k": -1}, "'old_fps_k' expects an int >= 1"),
+])
+def test_bad_gap_account_inputs_are_named(value, match):
+    with pytest.raises(ParameterError, match=match):
+        check_parameters("11_gap_to_paper", value)
 
 
 def test_every_preset_passes_the_value_check():

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from helpers.core.configs import SearchConfig
+from helpers.core.configs import SearchConfig, paper_ratio_search
 from helpers.core.rotations import geodesic_deg, haar_uniform, nearest
 from helpers.search.retrieval import ReferenceBank, authors_sizes, fast_search, greedy_search, model_scorer, search_all
+from helpers.study.parameters import check_parameters, configs_from
 
 
 def cosine_scorer(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
@@ -318,3 +319,16 @@ def test_duck_typed_model_without_rows_gets_gathered_refs():
     q = synthetic_feats(bank.rotations[42:43], 1, 2)[0]
     p = fast_search(q, bank, scorer, SearchConfig(k_ac=20, fps_k=8))
     assert (p.obj_index, p.ref_index) == (1, 42)
+
+
+def test_fast_search_defaults_to_the_papers_ratios():
+    assert (paper_ratio_search(10000).k_ac, paper_ratio_search(10000).fps_k) == (1024, 256)  # the paper's budget
+    assert (paper_ratio_search(512).k_ac, paper_ratio_search(512).fps_k) == (52, 13)
+    assert (paper_ratio_search(48).k_ac, paper_ratio_search(48).fps_k) == (5, 1)
+    s = paper_ratio_search(512, k_ac=128, fps_k=32)  # a named variant is taken as given
+    assert (s.k_ac, s.fps_k, s.method) == (128, 32, "fast")
+    assert paper_ratio_search(2048, k_ac=100).fps_k == 25  # fps_k follows the given k_ac
+    with pytest.raises(ValueError, match="n_refs"):
+        paper_ratio_search(0)
+    P = check_parameters("03_evaluate", {"n_references": 512, "k_ac": 0, "fps_k": 0})
+    assert (configs_from(P).search.k_ac, configs_from(P).search.fps_k) == (52, 13)

@@ -12,7 +12,7 @@ import pytest
 
 from helpers.core.paths import REPO_ROOT
 from helpers.evaluation.claims import build_claims
-from helpers.evaluation.search_results import FAST_ROW, GREEDY_ROW, SearchComparison
+from helpers.evaluation.search_results import FAST_ROW, GREEDY_ROW, SearchComparison, variant_row
 from helpers.evaluation.stats import VERDICTS
 
 pytestmark = pytest.mark.after_notebooks
@@ -45,7 +45,7 @@ def _per_query(path: Path, cols=("obj", "query_id", "rot_ok", "class_ok")) -> pd
 
 
 NOTEBOOKS = ["01_render", "02_train", "03_evaluate", "04_ablation_scales", "05_ablation_fusion",
-             "06_reference_count", "07_fast_vs_greedy", "08_components", "09_tless", "10_explore"]
+             "06_reference_count", "07_fast_vs_greedy", "08_components", "09_tless", "10_explore", "11_gap_to_paper"]
 
 
 @pytest.mark.parametrize("nb", NOTEBOOKS)
@@ -83,7 +83,14 @@ def test_evaluation_metrics_and_byo(session_start):
     assert m["protocol"]["method"] in ("fast", "greedy", "c2f") and m["protocol"]["threshold_deg"] == 30.0
     ours = _per_query(d / "per_query_ours.csv", ("split", "part", "obj", "query_id", "rot_ok", "class_ok"))
     assert set(ours["part"]) == {"unseen", "seen", "occluded"}
-    _per_query(d / "per_query_hog.csv")
+    # like with like: ours, HOG and Global with the protocol's search and the other one, rotations kept
+    other = "greedy" if m["protocol"]["method"] == "fast" else "fast"
+    for stem in ("ours", "hog", "global"):
+        for f in (f"per_query_{stem}.csv", f"per_query_{stem}_{other}.csv"):
+            pq = _per_query(d / f, ("obj", "query_id", "rot_ok", "class_ok", "R_est", "R_gt", "search"))
+            assert set(pq["search"]) == {m["protocol"]["method"] if f == f"per_query_{stem}.csv" else other}, f
+    like = pd.DataFrame(m["table1_searches"])
+    assert set(like["method"]) == {"Ours", "HOG", "Global"} and set(like["search"]) == {"fast", "greedy"}
     held = _per_query(d / "per_query_held_out.csv", ("obj", "query_id", "rot_ok", "class_ok", "model"))
     assert set(held["obj"]).isdisjoint(ours["obj"])  # held-out objects belong to no split
     byo = _json(d / "byo.json")
@@ -115,11 +122,18 @@ def test_ablation_metrics(nb, session_start):
 
 def test_reference_count_metrics(session_start):
     d = _fresh("06_reference_count", session_start)
-    t = pd.DataFrame(_json(d / "metrics.json")["table"])
-    counts = list(t["refs_per_object"])
-    assert counts == sorted(counts) and (t["queries/s"] > 0).all()
+    m = _json(d / "metrics.json")
+    t = pd.DataFrame(m["table"])
+    assert set(t["search"]) == {"greedy", "fast"} and (t["queries/s"] > 0).all()
+    counts = list(t.loc[t["search"] == "greedy", "refs_per_object"])
+    assert counts == sorted(counts) == list(t.loc[t["search"] == "fast", "refs_per_object"])
+    assert counts[-1] > _json(d / "run.json")["parameters"]["n_references"]  # the sweep renders beyond the study's set
+    fast = t[t["search"] == "fast"]
+    assert (fast["k_ac"] == [max(1, round(c * 0.1024)) for c in fast["refs_per_object"]]).all()  # the paper's ratio
     for c in counts:
         _per_query(d / f"per_query_{c:.0f}refs.csv")
+        _per_query(d / f"per_query_{c:.0f}refs_fast.csv")
+    assert len(m["steps"]) == 2 * (len(counts) - 1) and len(m["fast_minus_greedy"]) == len(counts)
 
 
 def test_fast_vs_greedy_results(session_start):
@@ -129,6 +143,26 @@ def test_fast_vs_greedy_results(session_start):
     for pq in r.per_query.values():
         assert len(pq) == r.n_queries and (pq["seconds"] > 0).all()
     assert r.median_seconds(GREEDY_ROW) > 0 and 0.0 <= r.agreement_30deg[FAST_ROW]["share"] <= 1.0
+    params = _json(_fresh("07_fast_vs_greedy", session_start) / "run.json")["parameters"]
+    for k, f in params["fast_variants"]:  # every named budget keeps its per-query file
+        assert variant_row(k, f) in r.per_query
+
+
+def test_gap_account(session_start):
+    d = _fresh("11_gap_to_paper", session_start)
+    m = _json(d / "metrics.json")
+    steps = pd.DataFrame(m["steps"])
+    assert list(steps["step"]) == ["earlier_protocol", "symmetries", "paper_search_ratio", "greedy",
+                                   "dense_references", "not_measured"]
+    measured = steps.iloc[1:-1]
+    assert (measured["change_lo"] <= measured["change_pts"]).all() and (measured["change_pts"] <= measured["change_hi"]).all()
+    # each change is the difference of the levels it joins, and the last row reaches the paper's number
+    assert np.allclose(steps["rot_acc"].diff().iloc[1:-1], measured["change_pts"], atol=1e-6)
+    assert steps["rot_acc"].iloc[-1] == m["paper_rot_acc"] and steps["verdict"].iloc[-1] == "not measured"
+    assert steps["change_pts"].iloc[1] >= 0  # scoring the same answers under symmetries can only forgive errors
+    assert (d / "gap_waterfall.png").stat().st_size > 5000
+    ids = {c["id"] for c in build_claims(SMOKE)}
+    assert {"gap:symmetries", "gap:dense_references", "gap:earlier_protocol:rot_acc"} <= ids
 
 
 def test_tless_metrics(session_start):

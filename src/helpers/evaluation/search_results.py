@@ -2,7 +2,7 @@
 :meth:`SearchComparison.save`, the claims and the report read them through :meth:`SearchComparison.load`.
 
 Files in the notebook's folder: ``metrics.json`` (every field below but the per-query tables),
-``fast_vs_greedy.csv/.md`` (the table) and ``per_query_<stem>.csv`` per search (:data:`STEMS`):
+``fast_vs_greedy.csv/.md`` (the table) and ``per_query_<stem>.csv`` per search (:func:`stem_of`):
 ``obj``, ``query_id``, ``rot_ok``, ``class_ok``, ``err_deg``... and ``seconds`` (wall seconds of
 that query's search, its share of a batched anchor stage included).
 """
@@ -27,6 +27,21 @@ C2F_ROWS = {"c2f": "coarse-to-fine (converge)", "c2f_halving": "coarse-to-fine h
 C2F_FAMILIES = {"c2f": "one cut", "c2f_halving": "halving"}
 #: search row -> file stem of its per-query table.
 STEMS = {GREEDY_ROW: "greedy", FAST_ROW: "fast", **{row: stem for stem, row in C2F_ROWS.items()}}
+
+
+def variant_row(k_ac: int, fps_k: int) -> str:
+    """Row name of a named fast-retrieval budget (notebook 07's ``fast_variants``)."""
+    return f"fast (k_ac {int(k_ac)}, fps_k {int(fps_k)})"
+
+
+def stem_of(row: str) -> str | None:
+    """File stem of a row's per-query table: :data:`STEMS`, ``fast_k<K>_f<F>`` for a named budget, else None."""
+    if row in STEMS:
+        return STEMS[row]
+    parts = row.removeprefix("fast (k_ac ").removesuffix(")").split(", fps_k ")
+    if row.startswith("fast (k_ac ") and len(parts) == 2 and all(p.isdigit() for p in parts):
+        return f"fast_k{parts[0]}_f{parts[1]}"
+    return None
 
 
 @dataclass
@@ -59,6 +74,9 @@ class SearchComparison:
         if rows[:1] != [GREEDY_ROW] or FAST_ROW not in rows:
             raise ValueError(f"SearchComparison: the table's first row must be {GREEDY_ROW!r} and it must hold "
                              f"{FAST_ROW!r}; got {rows}")
+        unnamed = [r for r in self.per_query if stem_of(r) is None]
+        if unnamed:
+            raise ValueError(f"SearchComparison: rows without a per-query file name: {unnamed}")
         missing = [r for r in self.per_query if "seconds" not in self.per_query[r].columns]
         if missing:
             raise ValueError(f"SearchComparison: per-query tables without a 'seconds' column: {missing}")
@@ -78,8 +96,8 @@ class SearchComparison:
         out = Path(out_dir)
         write_table(self.table, out / "fast_vs_greedy")
         for row, pq in self.per_query.items():
-            atomic_write_text(out / f"per_query_{STEMS[row]}.csv", pq.to_csv(index=False))
-        meta = {"table": self.table.to_dict(orient="records"), "per_query_files": {r: f"per_query_{STEMS[r]}.csv"
+            atomic_write_text(out / f"per_query_{stem_of(row)}.csv", pq.to_csv(index=False))
+        meta = {"table": self.table.to_dict(orient="records"), "per_query_files": {r: f"per_query_{stem_of(r)}.csv"
                                                                                   for r in self.per_query},
                 "agreement_with_greedy": self.agreement_with_greedy, "agreement_30deg": self.agreement_30deg,
                 "c2f_agreement_with_fast": self.c2f_agreement_with_fast, "c2f_selection": self.c2f_selection,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import os
+import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -184,16 +185,21 @@ def fusion_maps_figure(model, data: StudyData, res: dict, path: Path, n: int = 4
 
 
 def reference_count_figure(df, split: int, path: str | os.PathLike) -> Path:
-    """Unseen Rota. Acc. (left axis) and greedy queries/s (right axis) against references per object."""
+    """Unseen Rota. Acc. (left axis, solid) and queries/s (right axis, dashed) against references per object, one
+    colour per search (``search`` column; a table without it is greedy)."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 3.2))
-    ax.plot(df["refs_per_object"], df["unseen rot_acc"], "o-", label="Rota. Acc. (%)")
+    fig, ax = plt.subplots(figsize=(5.4, 3.4))
+    ax2 = ax.twinx()
+    searches = df["search"] if "search" in df.columns else ["greedy"] * len(df)
+    for (how, g), colour in zip(df.groupby(list(searches), sort=False), ("tab:blue", "tab:green")):
+        ax.plot(g["refs_per_object"], g["unseen rot_acc"], "o-", color=colour, label=f"Rota. Acc., {how} (%)")
+        ax2.plot(g["refs_per_object"], g["queries/s"], "s--", color=colour, alpha=0.6, label=f"queries/s, {how}")
     ax.set_xscale("log")
     ax.set_xlabel("references per object")
     ax.set_ylabel("unseen Rota. Acc. (%)")
-    ax2 = ax.twinx()
-    ax2.plot(df["refs_per_object"], df["queries/s"], "s--", color="tab:orange", label="queries/s")
-    ax2.set_ylabel("queries/s (greedy)")
+    ax2.set_yscale("log")
+    ax2.set_ylabel("queries/s (dashed)")
+    ax.legend(fontsize=7, loc="upper left")
     ax.set_title(f"Reference count, split #{split} unseen (cf. paper Fig. 7)", fontsize=9)
     return save(fig, path)
 
@@ -207,4 +213,34 @@ def curves_figure(curves: dict, path: str | os.PathLike, title: str) -> Path:
     ax.set(xlabel="optimiser steps", ylabel="validation Rota. Acc. (%)", title=title)
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))  # below the axes: covers no curve
     ax.grid(alpha=0.3)
+    return save(fig, path)
+
+
+def waterfall_figure(table, path: str | os.PathLike, title: str) -> Path:
+    """The gap account as a waterfall: the first step's Rota. Acc. as a bar, each later step as a floating bar
+    of its paired change (green up, red down) with the change's 95 % interval, a hatched bar for what is not
+    measured, and the final level. ``table``: :func:`helpers.evaluation.gap.account`'s rows."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.2, 3.8))
+    level = 0.0
+    for i, r in enumerate(table.itertuples()):
+        if i == 0:
+            ax.bar(i, r.rot_acc, color="tab:blue")
+            ax.errorbar(i, r.rot_acc, yerr=[[r.rot_acc - r.ci95_lo], [r.ci95_hi - r.rot_acc]], color="k", capsize=3)
+        elif r.verdict == "not measured":
+            ax.bar(i, r.change_pts, bottom=level, color="white", edgecolor="grey", hatch="//")
+        else:
+            ax.bar(i, r.change_pts, bottom=level, color="tab:green" if r.change_pts >= 0 else "tab:red")
+            top = level + r.change_pts
+            ax.errorbar(i, top, yerr=[[r.change_pts - r.change_lo], [r.change_hi - r.change_pts]], color="k",
+                        capsize=3)
+        level = r.rot_acc
+        ax.text(i, level + 1, f"{level:.1f}", ha="center", fontsize=7)
+    ax.set_xticks(range(len(table)))
+    ax.set_xticklabels([textwrap.fill(str(s), 16) for s in table["label"]], fontsize=6)
+    ax.set_ylabel("unseen Rota. Acc. (%)")
+    ax.set_ylim(0, 100)
+    ax.set_title(title, fontsize=9)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
     return save(fig, path)

@@ -135,7 +135,7 @@ _MIN_INT = {
     "byo_refs": 1, "group": 1, "query_batch": 1, "norm_window": 2,
     "seed": 0, "workers": 0, "steps_per_epoch": 0, "warmup_steps": 0, "clean_steps": 0, "seen_queries": 0,
     "occluded_queries": 0, "eval_refs": 0, "byo_queries": 0, "zoo_steps": 0,
-    "n_seeds": 1, "test_queries": 0, "query": 0, "top_k": 1, "n_queries": 1,
+    "n_seeds": 1, "test_queries": 0, "query": 0, "top_k": 1, "n_queries": 1, "old_k_ac": 1, "old_fps_k": 1,
 }
 _CHOICES = {
     "lr_schedule": ("step", "cosine"),
@@ -201,10 +201,9 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         if P["byo_queries"] > cap:
             raise _err(notebook, "byo_queries", f"0 (all) or at most {what}={cap}", P["byo_queries"])
     if "reference_counts" in P:
-        rc, n = P["reference_counts"], P.get("n_references")
-        if not rc or any(c < 1 for c in rc) or (n is not None and max(rc) > n):
-            raise _err(notebook, "reference_counts",
-                       f"a non-empty list of counts in [1, n_references={n}]", rc)
+        rc = P["reference_counts"]
+        if not rc or any(c < 1 for c in rc) or list(rc) != sorted(set(rc)):
+            raise _err(notebook, "reference_counts", "a non-empty ascending list of distinct counts >= 1", rc)
     if "device" in P:
         d = P["device"]
         if not (d in ("auto", "cpu", "cuda") or (d.startswith("cuda:") and d[5:].isdigit())):
@@ -213,6 +212,9 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         v = P.get(name)  # coarse-to-fine candidates (07): chosen among on held-out views of seen objects
         if v is not None and ((not v and not may_be_empty) or len(set(v)) != len(v) or any(x < 1 for x in v)):
             raise _err(notebook, name, f"a list of distinct ints >= 1{' (empty: skip)' if may_be_empty else ''}", v)
+    if P.get("report_dir") and not repo_path(P["report_dir"]).is_dir():
+        raise _err(notebook, "report_dir", "'' or an existing report folder (relative paths from the repository "
+                   f"root: {REPO_ROOT})", P["report_dir"])
     fv = P.get("fast_variants")  # 07: named fast-retrieval budgets beside the paper-ratio default
     if fv is not None and any(not isinstance(x, list) or len(x) != 2 or not all(isinstance(i, int) and i >= 1 for i in x)
                               for x in fv):
