@@ -235,7 +235,7 @@ def waterfall_figure(table, path: str | os.PathLike, title: str) -> Path:
             ax.errorbar(i, top, yerr=[[r.change_pts - r.change_lo], [r.change_hi - r.change_pts]], color="k",
                         capsize=3)
         level = r.rot_acc
-        ax.text(i, level + 1, f"{level:.1f}", ha="center", fontsize=7)
+        ax.text(i + 0.42, level, f"{level:.1f}", ha="right", va="bottom", fontsize=7)  # clear of the error bar
     ax.set_xticks(range(len(table)))
     ax.set_xticklabels([textwrap.fill(str(s), 16) for s in table["label"]], fontsize=6)
     ax.set_ylabel("unseen Rota. Acc. (%)")
