@@ -177,6 +177,26 @@ def symmetric_geodesic_deg(R_est: np.ndarray, R_gt: np.ndarray,
     return geodesic_deg(R_est[:, None], cand).min(axis=1)
 
 
+def nearest_symmetric(query: np.ndarray, refs: np.ndarray,
+                      symmetries: np.ndarray | Symmetries | None) -> tuple[np.ndarray, np.ndarray]:
+    """Index (N,) and symmetry-aware angle (N,) in radians of each query's nearest reference.
+
+    ``query`` (N,3,3), ``refs`` (M,3,3), ``symmetries`` as :func:`symmetric_geodesic_deg` (None:
+    :func:`nearest`). The distance of reference R to query Q is min over S of angle(R, Q S), so of
+    a symmetric object's equivalent views the closest one is found whichever it is.
+    """
+    if symmetries is None or (not isinstance(symmetries, Symmetries) and len(symmetries) <= 1):
+        return nearest(query, refs)
+    query = np.asarray(query, dtype=np.float64).reshape(-1, 3, 3)
+    refs = np.asarray(refs, dtype=np.float64).reshape(-1, 3, 3)
+    idx, ang = np.zeros(len(query), np.int64), np.zeros(len(query))
+    for i, q in enumerate(query):  # one (M,) row per query: M x |group| traces, small beside a training step
+        d = symmetric_geodesic_deg(refs, np.broadcast_to(q, refs.shape), symmetries)
+        idx[i] = int(np.argmin(d))
+        ang[i] = np.deg2rad(d[idx[i]])
+    return idx, ang
+
+
 def discrete_symmetries_from_axis(axis: np.ndarray, order: int) -> np.ndarray:
     """Rotations (order, 3, 3) about ``axis`` by multiples of 2*pi/order (model frame)."""
     axis = np.asarray(axis, dtype=np.float64)

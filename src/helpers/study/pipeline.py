@@ -247,6 +247,8 @@ def _train_key(cfg: Any) -> dict:
     d = cfg.to_dict() if hasattr(cfg, "to_dict") else asdict(cfg)
     for k in ("device", "progress", "num_threads", "val_batch_size"):
         d.pop(k, None)
+    if not d.get("symmetry_aware", True):  # added later: the default keeps earlier runs' folders
+        d.pop("symmetry_aware")
     return d
 
 

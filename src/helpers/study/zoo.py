@@ -390,19 +390,22 @@ def load(name: str, device: str | torch.device = "auto", zoo_dir: Path = ZOO_DIR
 MODEL_SOURCES = ("train", "zoo")
 # TrainConfig fields that make an ablation variant (besides the architecture): a zoo model stands
 # in for a requested variant only when these and its model config are the same.
-_VARIANT_FIELDS = ("seed", "weighted_loss", "occlusion", "random_ref")
+_VARIANT_FIELDS = ("seed", "weighted_loss", "occlusion", "random_ref", "symmetry_aware")
+#: Defaults of variant fields that zoo entries written before the field existed lack.
+_VARIANT_DEFAULTS = {"symmetry_aware": False}
 
 
 def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR, steps: int = 0) -> str:
     """Name of the zoo model trained on ``split`` with ``train_cfg``'s architecture and variant
-    switches (seed, loss, occlusion, random reference); the budget is the zoo's, not ``train_cfg``'s:
+    switches (seed, loss, occlusion, random reference, symmetry-aware training, augmentation); the budget is the zoo's, not ``train_cfg``'s:
     ``steps`` optimiser steps, or (0) the shortest budget the zoo has for it (4,000 steps; every ablation
     variant has that one). ValueError listing what the zoo has when none matches."""
     want = ModelConfig.from_dict(train_cfg.model.to_dict()).to_dict()
     zoo = entries(zoo_dir)
     found = {name: int(e["steps"]) for name, e in zoo.items()
              if e["split"] == split and ModelConfig.from_dict(e["train"]["model"]).to_dict() == want
-             and all(e["train"].get(f) == getattr(train_cfg, f) for f in _VARIANT_FIELDS)}
+             and all(e["train"].get(f, _VARIANT_DEFAULTS.get(f)) == getattr(train_cfg, f) for f in _VARIANT_FIELDS)
+             and e["train"].get("augment", train_cfg.augment.to_dict()) == train_cfg.augment.to_dict()}
     if found and steps:
         for name, n in found.items():
             if n == steps:

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from ..core.configs import AugmentConfig
-from ..core.rotations import nearest
+from ..core.rotations import nearest, nearest_symmetric
 from ..core.views import ObjectViews
 from .augment import augment_batch
 
@@ -28,7 +28,7 @@ class _Batcher:
 
     def __init__(self, names: list[str], refs: dict[str, ObjectViews], queries: dict[str, ObjectViews],
                  aug: AugmentConfig, size: int, random_ref: str = "own",
-                 clean: dict[str, ObjectViews] | None = None) -> None:
+                 clean: dict[str, ObjectViews] | None = None, symmetry_aware: bool = False) -> None:
         self.names = names
         self.clean = [None if clean is None else clean.get(n) for n in names]
         self.size = size
@@ -44,6 +44,8 @@ class _Batcher:
         self.q_obj = np.concatenate(obj)
         self.q_idx = np.concatenate(idx)
         self.n_refs = np.array([len(r) for r in self.refs])
+        #: Symmetry group per object id (None: none declared, or symmetry-blind training).
+        self.symmetries = [r.symmetries if symmetry_aware else None for r in self.refs]
 
     def __len__(self) -> int:
         return len(self.q_obj)
@@ -77,11 +79,14 @@ class _Batcher:
         q_rot = np.stack([v[1] for v in views])
         q_mask = None if any(v[2] is None for v in views) else np.stack([v[2] for v in views])
         q_img, q_rot = augment_batch(q_img, q_rot, rng, self.aug, q_mask, self.size)
-        # Positive: nearest reference rotation of the same object, after augmentation.
+        # Positive: nearest reference rotation of the same object, after augmentation (under the object's
+        # symmetries when training is symmetry-aware).
         pos_idx = np.empty(len(picks), dtype=np.int64)
         for o in np.unique(q_obj):
             sel = q_obj == o
-            pos_idx[sel] = nearest(q_rot[sel], self.refs[o].rotations)[0]
+            sym = self.symmetries[o]
+            pos_idx[sel] = (nearest(q_rot[sel], self.refs[o].rotations) if sym is None
+                            else nearest_symmetric(q_rot[sel], self.refs[o].rotations, sym))[0]
         rnd_obj = rng.integers(0, len(self.refs), size=len(picks))
         if self.random_ref == "own":  # drawn either way, so both switches consume the same stream
             rnd_obj = q_obj

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..core.rotations import symmetric_geodesic_deg
+
 WEIGHT_FLOOR = 1e-3
 """Smallest weight used inside the loss.
 
@@ -29,7 +31,7 @@ def _as_tensor(x, dtype: torch.dtype, device: torch.device | None = None) -> tor
     return torch.as_tensor(np.asarray(x), dtype=dtype, device=device)
 
 
-def pair_weights(q_obj, q_R, r_obj, r_R) -> torch.Tensor:
+def pair_weights(q_obj, q_R, r_obj, r_R, symmetries=None) -> torch.Tensor:
     """Loss weights between B queries and M references.
 
     Args:
@@ -37,6 +39,9 @@ def pair_weights(q_obj, q_R, r_obj, r_R) -> torch.Tensor:
         q_R: (B, 3, 3) query rotations R_m2c.
         r_obj: (M,) int object ids of the references.
         r_R: (M, 3, 3) reference rotations R_m2c.
+        symmetries: None, or a sequence indexed by object id of symmetry groups (None, (K,3,3) or
+            :class:`helpers.core.rotations.Symmetries`): same-object pairs of an object with a group
+            get the symmetric geodesic, min over S of angle(R_r, R_q S).
         (numpy arrays or tensors; the result lives on q_R's device if it is a
         tensor, else on the CPU.)
 
@@ -58,8 +63,29 @@ def pair_weights(q_obj, q_R, r_obj, r_R) -> torch.Tensor:
     # trace(Rq^T Rr) = sum_ij Rq_ij Rr_ij, then the geodesic angle.
     tr = torch.einsum("bij,mij->bm", qR, rR)
     ang = torch.arccos(((tr - 1.0) / 2.0).clamp(-1.0, 1.0))
+    if symmetries is not None:
+        ang = _symmetric_angles(ang, qo, qR, ro, rR, symmetries)
     w = torch.where(qo[:, None] == ro[None, :], ang / np.pi, torch.ones_like(ang))
     return w.float()
+
+
+def _symmetric_angles(ang: torch.Tensor, qo: torch.Tensor, qR: torch.Tensor, ro: torch.Tensor, rR: torch.Tensor,
+                      symmetries) -> torch.Tensor:
+    """``ang`` (B, M) radians with the same-object pairs of symmetric objects replaced by the symmetric
+    geodesic (numpy, on the CPU: a few hundred pairs per step)."""
+    out = ang.clone()
+    q_obj, r_obj = qo.cpu().numpy(), ro.cpu().numpy()
+    q_rot, r_rot = qR.cpu().numpy(), rR.cpu().numpy()
+    for o in np.unique(q_obj):
+        sym = symmetries[int(o)] if 0 <= int(o) < len(symmetries) else None
+        if sym is None:
+            continue
+        bi, mi = np.nonzero((q_obj[:, None] == o) & (r_obj[None, :] == o))
+        if len(bi):
+            d = symmetric_geodesic_deg(r_rot[mi], q_rot[bi], sym)
+            out[torch.as_tensor(bi), torch.as_tensor(mi)] = torch.as_tensor(np.deg2rad(d), dtype=out.dtype,
+                                                                             device=out.device)
+    return out
 
 
 def weighted_info_nce(scores: torch.Tensor, pos: torch.Tensor, weights: torch.Tensor | None = None,

@@ -46,6 +46,8 @@ from .validation import plot_history, selection_metric, validate
 # precision: a run resumed on a machine without native bf16 goes on in float32 (each history entry
 # records the precision its epoch used).
 _RESUMABLE_CHANGES = {"epochs", "device", "num_threads", "val_every", "progress", "val_batch_size", "precision"}
+# Fields added after checkpoints were written: a checkpoint without one was trained with its default.
+_LATER_DEFAULTS = {"symmetry_aware": False}
 
 
 @dataclass
@@ -92,7 +94,8 @@ def _check_views(views: dict[str, ObjectViews], what: str, size: int, context_ok
 
 
 def train_step(model: OrientationNet, optimizer: torch.optim.Optimizer, images: torch.Tensor,
-               q_obj, q_rot, r_obj, r_rot, tau: float = 0.1, weighted: bool = True, encode=None) -> float:
+               q_obj, q_rot, r_obj, r_rot, tau: float = 0.1, weighted: bool = True, encode=None,
+               symmetries=None) -> float:
     """One optimiser step on a prepared batch; returns the loss.
 
     Args:
@@ -102,11 +105,12 @@ def train_step(model: OrientationNet, optimizer: torch.optim.Optimizer, images: 
             ((B,), (B,3,3), (2B,), (2B,3,3)).
         encode: images -> features of all 3B images (default ``model.encode``; the
             distributed run encodes its shard and gathers, see :func:`sharded_encoder`).
+        symmetries: per object id, the groups of a symmetry-aware run (:func:`pair_weights`), else None.
     """
     b = len(q_obj)
     feats = (encode or model.encode)(images)
     scores = model.score(feats[:b], feats[b:])  # (B, 2B); column i is query i's positive
-    weights = pair_weights(q_obj, q_rot, r_obj, r_rot).to(scores.device) if weighted else None
+    weights = pair_weights(q_obj, q_rot, r_obj, r_rot, symmetries).to(scores.device) if weighted else None
     loss = weighted_info_nce(scores, torch.arange(b, device=scores.device), weights, tau)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
@@ -263,7 +267,8 @@ def _setup(cfg: TrainConfig, names: list[str], train_refs: dict[str, ObjectViews
     aug = replace(cfg.augment, occlusion=cfg.augment.occlusion or cfg.occlusion)
     if cfg.clean_steps and not clean_queries:
         raise ValueError("TrainConfig.clean_steps > 0 needs clean_queries (clean renders of the training objects)")
-    batcher = _Batcher(names, train_refs, train_queries, aug, cfg.model.image_size, cfg.random_ref, clean_queries)
+    batcher = _Batcher(names, train_refs, train_queries, aug, cfg.model.image_size, cfg.random_ref, clean_queries,
+                       cfg.symmetry_aware)
     if len(batcher) == 0:
         raise ValueError("train_queries: expected at least one training query")
     steps = cfg.steps_per_epoch or math.ceil(len(batcher) / cfg.batch_size)
@@ -288,7 +293,7 @@ def _setup(cfg: TrainConfig, names: list[str], train_refs: dict[str, ObjectViews
 def _resume(run: _Run, cfg: TrainConfig, last_path: Path) -> None:
     """Continue from ``last.pt``: weights, optimiser, schedule, history, best epoch and both random streams."""
     ck = read_checkpoint(last_path, run.device)
-    old, new = ck["config"], cfg.to_dict()
+    old, new = {**_LATER_DEFAULTS, **ck["config"]}, cfg.to_dict()
     diff = sorted(k for k in new if k not in _RESUMABLE_CHANGES and old.get(k) != new[k])
     if diff:
         raise ValueError(f"resume: {last_path} was trained with a different config "
@@ -317,7 +322,8 @@ def _train_epoch(run: _Run, cfg: TrainConfig, epoch: int) -> tuple[list[float], 
         p_clean = max(0.0, 1.0 - run.global_step / cfg.clean_steps) if cfg.clean_steps else 0.0
         imgs, q_obj, q_rot, r_obj, r_rot = run.batcher.make(picks, run.rng, p_clean)
         loss = train_step(run.model, run.optimizer, images_to_tensor(imgs).to(run.device),
-                          q_obj, q_rot, r_obj, r_rot, cfg.tau, cfg.weighted_loss, run.encode)
+                          q_obj, q_rot, r_obj, r_rot, cfg.tau, cfg.weighted_loss, run.encode,
+                          run.batcher.symmetries if cfg.symmetry_aware else None)
         if not math.isfinite(loss):
             raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}, step {step}")
         losses.append(loss)

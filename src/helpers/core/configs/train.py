@@ -103,6 +103,11 @@ class TrainConfig:
             (a random training object).
         tau: infoNCE temperature.
         weighted_loss: geodesic weights (True) or plain infoNCE (False).
+        symmetry_aware: use the objects' declared symmetries (``ObjectViews.symmetries`` of the
+            references, from the manifest) in training: each query's positive is its nearest reference
+            under the symmetry group, and the loss weights use the symmetric geodesic, so a view that is
+            indistinguishable from the query is no longer pushed away as a negative. False: the plain
+            geodesic, as the authors' code (run folders of earlier runs keep their keys).
         seed: seeds torch (init, dropout) and the numpy Generator (sampling,
             augmentation).
         device: "auto", "cpu", "cuda", ... (see helpers.core.device).
@@ -135,6 +140,7 @@ class TrainConfig:
     random_ref: str = "own"
     tau: float = 0.1
     weighted_loss: bool = True
+    symmetry_aware: bool = False
     seed: int = 0
     device: str = "auto"
     augment: AugmentConfig = field(default_factory=AugmentConfig)
@@ -151,7 +157,7 @@ class TrainConfig:
         _ints(self, ("epochs", "batch_size", "val_every", "val_batch_size"))
         _ints(self, ("steps_per_epoch", "num_threads"), none_ok=True)
         _ints(self, ("warmup_steps", "clean_steps", "seed"), lo=0)
-        _bools(self, ("weighted_loss", "occlusion", "progress"))
+        _bools(self, ("weighted_loss", "symmetry_aware", "occlusion", "progress"))
         if not float(self.lr) > 0:
             raise ValueError(f"TrainConfig.lr: expected > 0, got {self.lr!r}")
         try:
