@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from helpers.evaluation.claims import build_claims, write_claims
+from helpers.study.experiments import build_claims, write_claims
 from helpers.evaluation.search_results import SearchComparison
 from helpers.evaluation.stats import accuracy_ci, direction_verdict, paired_difference
 

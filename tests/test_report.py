@@ -71,7 +71,7 @@ def test_report_states_noise_of_claims(tmp_path):
 def test_tables_format_numbers_by_magnitude():
     import pandas as pd
 
-    from helpers.study.report import _md
+    from helpers.study.report_format import md_table as _md
 
     df = pd.DataFrame([{"refs": 32.0, "rot_acc": 4.1666, "s/query": 0.0213, "split": "#1", "ok": True},
                        {"refs": 512.0, "rot_acc": 8.3, "s/query": 0.61, "split": "mean", "ok": False}])
@@ -83,7 +83,7 @@ def test_tables_format_numbers_by_magnitude():
 
 
 def test_byo_line_reads_both_layouts_of_byo_json():
-    from helpers.study.report import _byo_line
+    from helpers.study.experiments.evaluate import _byo_line
 
     old = {"object": "racecar", "model": "all", "n_refs": 512, "error_deg": 176.04}  # one photo, before byo_queries
     assert _byo_line(old, None) == ("Bring-your-own-object demo (all): `racecar` from its mesh file, 512 references, "

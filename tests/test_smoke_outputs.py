@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from helpers.core.paths import REPO_ROOT
-from helpers.evaluation.claims import build_claims
+from helpers.study.experiments import build_claims
 from helpers.evaluation.search_results import FAST_ROW, GREEDY_ROW, SearchComparison, variant_row
 from helpers.evaluation.stats import VERDICTS
 

@@ -252,7 +252,7 @@ def test_notebook_03_compares_the_longer_zoo_budget_with_the_shortest_on_the_sam
     import pandas as pd
     import papermill as pm
 
-    from helpers.evaluation.claims import build_claims
+    from helpers.study.experiments import build_claims
     from helpers.study.parameters import notebook_path
 
     out = tmp_path / "03_evaluate"

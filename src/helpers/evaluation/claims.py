@@ -11,13 +11,11 @@ metrics JSON); nothing is typed in. Intervals and verdicts: :mod:`helpers.evalua
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from ..core.fileio import atomic_write_text
 from . import paper
 from .search_results import C2F_FAMILIES, C2F_ROWS, FAST_ROW, GREEDY_ROW, SearchComparison
 from .stats import (
@@ -328,48 +326,5 @@ def gap_claims(d: Path) -> list[dict]:
     return out
 
 
-SECTIONS: list[tuple[str, Callable[[Path], list[dict]]]] = [
-    ("03_evaluate", evaluation_claims),
-    ("04_ablation_scales", lambda d: ablation_claims(d, "scales")),
-    ("05_ablation_fusion", lambda d: ablation_claims(d, "fusion", paper.FUSION_SPLIT1)),
-    ("06_reference_count", reference_count_claims),
-    ("07_fast_vs_greedy", fast_claims),
-    ("08_components", lambda d: ablation_claims(
-        d, "components", {paper.component_label(ln, wl): v for (ln, wl), v in paper.COMPONENTS_SPLIT1.items()})),
-    ("09_tless", tless_claims),
-    ("11_gap_to_paper", gap_claims),
-]
-
-
 class StaleResults(ValueError):
     """A notebook's result files cannot be read by this version of the code (written by another one)."""
-
-
-def claims_by_section(base: Path) -> tuple[list[dict], dict[str, str]]:
-    """(claims of every notebook folder under ``base`` whose files this code reads, {folder: why not} for the
-    folders written by another version of the code: rerun those notebooks)."""
-    out: list[dict] = []
-    stale: dict[str, str] = {}
-    for sub, fn in SECTIONS:
-        try:
-            out += fn(Path(base) / sub)
-        except (KeyError, TypeError, ValueError) as e:  # a missing key, an old verdict word, an old layout
-            stale[sub] = (f"{Path(base) / sub}: its files were written by another version of the code "
-                          f"({type(e).__name__}: {e}); rerun notebook {sub}")
-    return out, stale
-
-
-def build_claims(base: Path) -> list[dict]:
-    """Every claim computable from the notebook outputs under ``base`` (reports/<preset>); a folder this code
-    cannot read is a :class:`StaleResults` error naming it and the notebook to rerun."""
-    claims, stale = claims_by_section(base)
-    if stale:
-        raise StaleResults("; ".join(stale.values()))
-    return claims
-
-
-def write_claims(base: Path, claims: list[dict] | None = None) -> Path:
-    """Write ``base/claims.json`` (a JSON list of claim records: ``claims`` or :func:`build_claims`)."""
-    path = Path(base) / "claims.json"
-    atomic_write_text(path, json.dumps(build_claims(base) if claims is None else claims, indent=1) + "\n")
-    return path

@@ -19,22 +19,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from ..core.configs import (QUERY_STYLES, AugmentConfig, DataConfig, ModelConfig, SearchConfig, TrainConfig,
                             paper_ratio_search, parse_scales)
-from ..core.paths import REPO_ROOT, is_checkpoint_choice, repo_path
-from ..data.manifest import load_manifest
+from ..core.paths import REPO_ROOT, repo_path
 from ..evaluation.paper import COMPONENT_LABELS
+from .experiments import experiment
+from .parameter_rules import FUSIONS, ParameterError, check_model_choice, scales_ok, zoo_entries
+from .parameter_rules import param_error as _err
 
 NOTEBOOK_DIR = REPO_ROOT / "notebooks"
 
 # Names IPython/papermill put in a kernel's namespace that are not parameters.
 _KERNEL_NAMES = {"In", "Out", "get_ipython", "exit", "quit", "open"}
-
-
-class ParameterError(ValueError):
-    """A notebook parameter is unknown, has the wrong type or a value outside its domain."""
 
 
 def notebook_path(name: str) -> Path:
@@ -126,7 +122,6 @@ def _is_user_name(k: str, v: Any) -> bool:
 
 
 _SPLITS = (1, 2, 3)
-_LEVELS = ("32", "16", "13")
 
 # name -> minimum allowed integer value
 _MIN_INT = {
@@ -140,22 +135,10 @@ _MIN_INT = {
 _CHOICES = {
     "lr_schedule": ("step", "cosine"),
     "random_ref": ("own", "any"),
-    "fusion": ("adaptive", "sigmoid", "softmax", "avg"),
+    "fusion": FUSIONS,
     "eval_method": ("fast", "greedy"),
     "models": ("train", "zoo"),
 }
-
-
-def scales_ok(s: str) -> bool:
-    """'global' or a comma list of distinct levels among 32, 16, 13."""
-    if s == "global":
-        return True
-    parts = [p.strip() for p in s.split(",")]
-    return bool(parts) and len(set(parts)) == len(parts) and set(parts) <= set(_LEVELS)
-
-
-def _err(nb: str, name: str, want: str, value: Any) -> ParameterError:
-    return ParameterError(f"notebook {nb}: parameter {name!r} expects {want}, got {value!r}")
 
 
 def check_values(notebook: str, P: dict[str, Any]) -> None:
@@ -230,80 +213,25 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         if list(m) != sorted(set(m)) or any(x < 1 for x in m):
             raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
     if P.get("byo_model"):  # 03: the held-out objects' and bring-your-own model
-        _check_model_choice(notebook, "byo_model", P["byo_model"], P["image_size"])
-    if notebook.startswith("10"):
-        _check_explore(notebook, P)
-    if notebook.startswith("09"):
-        _check_tless(notebook, P)
+        check_model_choice(notebook, "byo_model", P["byo_model"], P["image_size"])
+    exp = experiment(notebook)
+    if exp is not None and exp.check is not None:  # what only this notebook's parameters need
+        exp.check(notebook, P)
     _check_configs(notebook, P)
-
-
-def _zoo_entries() -> dict:
-    """models/zoo.yaml's entries by name, read directly: the zoo module pulls in training."""
-    zoo_yaml = REPO_ROOT / "models" / "zoo.yaml"
-    return (yaml.safe_load(zoo_yaml.read_text()) or {}).get("models") or {} if zoo_yaml.exists() else {}
 
 
 def _check_zoo_steps(notebook: str, steps: int) -> None:
     """``zoo_steps``: a budget some published zoo model has (which models have it, notebook 03 finds)."""
-    zoo = _zoo_entries()
+    zoo = zoo_entries()
     budgets = sorted({int(e["steps"]) for e in zoo.values()})
     if steps not in budgets:
         raise _err(notebook, "zoo_steps", f"0 or a budget of the published zoo, one of {budgets}", steps)
 
 
-def _check_model_choice(notebook: str, name: str, choice: str, image_size: int) -> None:
-    """A model parameter: a zoo model's name taking ``image_size`` px crops, or an existing checkpoint file."""
-    if is_checkpoint_choice(choice):
-        if not repo_path(choice).is_file():
-            raise _err(notebook, name, "a zoo model name or an existing checkpoint (.pt) file "
-                       f"(relative paths from the repository root: {REPO_ROOT})", choice)
-        return
-    zoo = _zoo_entries()
-    if choice not in zoo:
-        raise _err(notebook, name, f"a zoo model among {sorted(zoo)} or a checkpoint (.pt) file", choice)
-    if zoo[choice]["data"]["image_size"] != image_size:
-        raise _err(notebook, name, f"a model taking image_size={image_size} px crops "
-                   f"({choice} takes {zoo[choice]['data']['image_size']})", choice)
-
-
-def _check_explore(notebook: str, P: dict[str, Any]) -> None:
-    """The explorer's model (zoo name or checkpoint file), first object and query."""
-    _check_model_choice(notebook, "model", P["model"], P["image_size"])
-    objects = load_manifest().seen_objects(0)
-    if P["object_name"] and P["object_name"] not in objects:
-        raise _err(notebook, "object_name", f"'' or a benchmark object among {objects}", P["object_name"])
-    if P["query"] >= P["n_test_queries"]:
-        raise _err(notebook, "query", f"an index below n_test_queries={P['n_test_queries']}", P["query"])
-
-
-def _check_tless(notebook: str, P: dict[str, Any]) -> None:
-    """The T-LESS-like notebook's models and set sizes."""
-    _check_model_choice(notebook, "model", P["model"], P["image_size"])
-    if P["global_model"]:
-        _check_model_choice(notebook, "global_model", P["global_model"], P["image_size"])
-    if not 0.0 < P["min_visible"] <= 1.0:
-        raise _err(notebook, "min_visible", "a share in (0, 1]", P["min_visible"])
-    if P["bop_root"]:
-        root = repo_path(P["bop_root"])
-        if not (root / P["bop_split"]).is_dir() or not any((root / "models").glob("models_info.json")):
-            raise _err(notebook, "bop_root", f"'' or a BOP dataset folder with models/models_info.json and a "
-                       f"{P['bop_split']!r} split folder (bop_split)", P["bop_root"])
-
-
 def _check_variants(notebook: str, variants: list) -> None:
+    """A non-empty list without repeats (what each variant may be, its experiment checks)."""
     if not variants or len(set(variants)) != len(variants):
         raise _err(notebook, "variants", "a non-empty list without repeats", variants)
-    if notebook.startswith("04"):
-        bad = [v for v in variants if not scales_ok(v)]
-        want = "scale sets ('global' or comma lists of 32/16/13)"
-    elif notebook.startswith("05"):
-        bad = [v for v in variants if v not in _CHOICES["fusion"]]
-        want = f"fusions among {list(_CHOICES['fusion'])}"
-    else:
-        return
-    if bad:
-        raise _err(notebook, "variants", f"{want}; bad: {bad}", variants)
 
 
 def _check_seeded(notebook: str, seeded: list, variants: list | None) -> None:

@@ -1,0 +1,62 @@
+"""The experiment registry (helpers.study.experiments) against the notebooks."""
+
+import re
+from pathlib import Path
+
+import pytest
+
+from helpers.core.paths import REPO_ROOT
+from helpers.study.experiments import REGISTRY, experiment
+from helpers.study.parameter_rules import ParameterError
+from helpers.study.parameters import check_values
+from helpers.study.runner import notebooks
+
+EVALUATION = REPO_ROOT / "src" / "helpers" / "evaluation"
+
+
+def test_every_notebook_has_one_experiment_and_every_experiment_a_notebook():
+    names = [e.notebook for e in REGISTRY]
+    assert len(set(names)) == len(names)
+    assert names == sorted(names)  # notebook order: the report's sections follow it
+    assert set(names) == set(notebooks()), "a notebook without an experiment module, or a module without notebook"
+    for e in REGISTRY:
+        assert e.question and (e.claims or e.section or e.check), e.notebook
+        assert experiment(e.notebook) is e
+    assert experiment("99_nothing") is None
+
+
+def test_no_notebook_name_in_the_evaluation_layer():
+    pattern = re.compile("|".join(re.escape(e.notebook) for e in REGISTRY))
+    hits = [f"{p.relative_to(REPO_ROOT)}:{i}" for p in sorted(EVALUATION.rglob("*.py"))
+            for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not hits, hits
+
+
+def test_an_experiment_checks_its_own_parameters():
+    with pytest.raises(ParameterError, match="notebook 05_ablation_fusion: parameter 'variants' expects fusions"):
+        check_values("05_ablation_fusion", {"variants": ["avg", "mean"]})
+    with pytest.raises(ParameterError, match="notebook 04_ablation_scales: parameter 'variants' expects scale sets"):
+        check_values("04_ablation_scales", {"variants": ["32", "8"]})
+    check_values("04_ablation_scales", {"variants": ["32", "global"]})  # valid: no error
+    # A notebook without its own checks takes the shared ones only.
+    check_values(Path("01_render").name, {"n_references": 4})
+
+
+def test_the_committed_quick_report_is_rebuilt_identically(tmp_path):
+    """The claims and the report are a function of the committed result files: rebuilding them from
+    reports/quick gives the committed claims.json and REPORT.md (but the line naming the assembling commit)."""
+    import shutil
+
+    from helpers.study.report import build_report
+
+    src = REPO_ROOT / "reports" / "quick"
+    if not (src / "claims.json").exists():
+        pytest.skip("no committed quick report")
+    shutil.copytree(src, tmp_path / "quick", ignore=shutil.ignore_patterns("*.ipynb", "*.html", "*.png"))
+    build_report("quick", root=tmp_path)
+    assert (tmp_path / "quick" / "claims.json").read_text() == (src / "claims.json").read_text()
+
+    def body(p: Path) -> list[str]:
+        return [ln for ln in p.read_text().splitlines() if not ln.startswith("- notebooks ran at")]
+
+    assert body(tmp_path / "quick" / "REPORT.md") == body(src / "REPORT.md")
