@@ -60,3 +60,24 @@ def test_the_committed_quick_report_is_rebuilt_identically(tmp_path):
         return [ln for ln in p.read_text().splitlines() if not ln.startswith("- notebooks ran at")]
 
     assert body(tmp_path / "quick" / "REPORT.md") == body(src / "REPORT.md")
+
+
+def _screens(**over):
+    P = {"image_size": 64, "split": 1, "screen_queries": 8, "baseline": ["split1", "split1-seed1"],
+         "arms": [["avg-fusion", "avg", "avg-seed1"]]}
+    return {**P, **over}
+
+
+@pytest.mark.parametrize("over, message", [
+    ({"baseline": []}, "'baseline' expects a non-empty list"),
+    ({"arms": [["only-a-label"]]}, "'arms' expects a list of \\[label, zoo model"),
+    ({"arms": [["current", "avg"]]}, "distinct labels other than 'current'"),
+    ({"arms": [["a", "avg"], ["a", "sigmoid"]]}, "distinct labels"),
+    ({"arms": [["x", "split2"]]}, "zoo models trained on split 1 \\(split2 is split 2\\)"),
+    ({"arms": [["x", "no-such-model"]]}, "a zoo model among"),
+    ({"image_size": 128}, "image_size=128"),
+])
+def test_the_screens_check_their_models(over, message):
+    with pytest.raises(ParameterError, match=message):
+        check_values("12_training_screens", _screens(**over))
+    check_values("12_training_screens", _screens())

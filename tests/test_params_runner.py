@@ -15,8 +15,9 @@ from helpers.study.runner import notebooks, preset_parameters
 
 def test_every_notebook_has_a_literal_parameters_cell():
     names = notebooks()
-    assert names[:3] == ["01_render", "02_train", "03_evaluate"] and names[-2:] == ["10_explore", "11_gap_to_paper"]
-    assert len(names) == 11
+    assert names[:3] == ["01_render", "02_train", "03_evaluate"] and names[-2:] == ["11_gap_to_paper",
+                                                                                   "12_training_screens"]
+    assert len(names) == 12
     for n in names:
         d = declared_parameters(notebook_path(n))
         assert "out_dir" in d and d["out_dir"] == f"reports/smoke/{n}"

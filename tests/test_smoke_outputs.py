@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from helpers.core.paths import REPO_ROOT
-from helpers.study.experiments import build_claims
+from helpers.study.experiments import REGISTRY, build_claims
 from helpers.evaluation.search_results import FAST_ROW, GREEDY_ROW, SearchComparison, variant_row
 from helpers.evaluation.stats import VERDICTS
 
@@ -44,8 +44,7 @@ def _per_query(path: Path, cols=("obj", "query_id", "rot_ok", "class_ok")) -> pd
     return df
 
 
-NOTEBOOKS = ["01_render", "02_train", "03_evaluate", "04_ablation_scales", "05_ablation_fusion",
-             "06_reference_count", "07_fast_vs_greedy", "08_components", "09_tless", "10_explore", "11_gap_to_paper"]
+NOTEBOOKS = [e.notebook for e in REGISTRY]
 
 
 @pytest.mark.parametrize("nb", NOTEBOOKS)
@@ -186,3 +185,18 @@ def test_claims_of_the_smoke_reports(session_start):
     for c in claims:
         assert c["verdict"] in VERDICTS, c
         assert c["ci95"] is None or (c["ci95"][0] <= c["ci95"][1] and all(math.isfinite(v) for v in c["ci95"]))
+
+
+def test_training_screens(session_start):
+    d = _fresh("12_training_screens", session_start)
+    m = _json(d / "metrics.json")
+    assert {"table", "trend", "measured_on", "changes", "afterwards", "models"} <= set(m), sorted(m)
+    assert m["changes"]["current"] == "the current recipe" and "->" in m["changes"]["avg-fusion"]
+    for row in m["table"]:
+        assert _pct(row["seen val rot_acc"]) and row["ci95 lo"] <= row["seen val rot_acc"] <= row["ci95 hi"]
+    ids = {c["id"]: c for c in build_claims(SMOKE)}
+    deciding = ids["screen:avg-fusion_beats_current"]
+    assert deciding["verdict"] in VERDICTS and deciding["matched_seeds"] == 2
+    assert deciding["seed_spread_pts"] is not None  # two seeds on each side: the spread enters the verdict
+    assert ids["screen_unseen:avg-fusion_beats_current"]["verdict"] == "measured"  # reported, never a decision
+    assert (d / "screens.png").stat().st_size > 0 and (d / "afterwards.csv").exists()

@@ -184,6 +184,8 @@ def ablation_claims(d: Path, prefix: str, paper_values: dict[str, float] | None 
     m = _load(d / "metrics.json")
     if not m:
         return []
+    # What the differences were measured on (files without the key: an ablation's unseen queries).
+    measured_on = m.get("measured_on", f"split #{m['split']} unseen Rota. Acc.")
     out = []
     for key, v in m.get("trend", {}).items():
         if not isinstance(v, dict):
@@ -196,11 +198,28 @@ def ablation_claims(d: Path, prefix: str, paper_values: dict[str, float] | None 
                 pv = round(paper_values[better] - paper_values[worse], 2)
             cid = f"{prefix}:{key}" if len(pairs) == 1 else f"{prefix}:{key}:{better}>{worse}"
             extra = {k: _round(p[k]) for k in ("seeds", "matched_seeds", "per_seed_diff_pts", "seed_spread_pts")}
-            out.append(record(cid, f"{better} beats {worse} (split #{m['split']} unseen Rota. Acc., points, paired)",
+            out.append(record(cid, f"{better} beats {worse} ({measured_on}, points, paired)",
                               pv, p["diff_pts"], p["ci"], p["verdict"], **extra))
     for label, c in (m.get("seeds") or {}).items():
-        out.append(record(f"{prefix}:seed_noise:{label}", f"training noise: {c['compare']} (split #{m['split']} "
-                          "unseen Rota. Acc., points, paired)", None, c["diff_pts"], c["ci"], MEASURED))
+        out.append(record(f"{prefix}:seed_noise:{label}", f"training noise: {c['compare']} ({measured_on}, points, "
+                          "paired)", None, c["diff_pts"], c["ci"], MEASURED))
+    return out
+
+
+def screen_claims(d: Path, prefix: str = "screen") -> list[dict]:
+    """Training-regime screens: each arm against the current recipe on held-out views of the split's SEEN objects
+    (the deciding claims, as :func:`ablation_claims`), then on the split's unseen test objects (``afterwards``:
+    reported, never used to choose; their verdicts are measured, not decisions)."""
+    out = ablation_claims(d, prefix)
+    m = _load(d / "metrics.json")
+    for key, p in ((m or {}).get("afterwards") or {}).items():
+        if not isinstance(p, dict):
+            continue
+        better, worse = p["compare"].split(" vs ")
+        extra = {k: _round(p[k]) for k in ("seeds", "matched_seeds", "per_seed_diff_pts", "seed_spread_pts") if k in p}
+        out.append(record(f"{prefix}_unseen:{key}", f"afterwards, not used to choose: {better} minus {worse} "
+                          f"({m['afterwards_measured_on']}, points, paired)", None, p["diff_pts"], p["ci"], MEASURED,
+                          **extra))
     return out
 
 

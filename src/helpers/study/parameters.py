@@ -173,6 +173,9 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         raise _err(notebook, "scales", "'global' or a comma list of 32/16/13", P["scales"])
     if "variants" in P:
         _check_variants(notebook, P["variants"])
+    exp = experiment(notebook)
+    if exp is not None and exp.check is not None:  # what only this notebook's parameters need
+        exp.check(notebook, P)
     if "seeded_variants" in P:
         _check_seeded(notebook, P["seeded_variants"], P.get("variants"))
     if "test_queries" in P and P.get("n_test_queries") is not None and P["test_queries"] > P["n_test_queries"]:
@@ -214,9 +217,6 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
             raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
     if P.get("byo_model"):  # 03: the held-out objects' and bring-your-own model
         check_model_choice(notebook, "byo_model", P["byo_model"], P["image_size"])
-    exp = experiment(notebook)
-    if exp is not None and exp.check is not None:  # what only this notebook's parameters need
-        exp.check(notebook, P)
     _check_configs(notebook, P)
 
 

@@ -42,6 +42,7 @@ import pandas as pd
 from ..core.configs import GREEDY, parse_scales
 from ..core.fileio import atomic_write_json, atomic_write_text, stable_hash, write_table
 from ..core.paths import cache_dir
+from ..core.views import ObjectViews
 from ..evaluation.metrics import summarise_queries
 from ..evaluation.stats import accuracy_ci, seed_mean
 from ..search.features import model_fingerprint
@@ -154,14 +155,22 @@ def _eval_cache_key(t: Trained, data: StudyData, bench: list[str], queries: dict
 def evaluate_unseen(trained: dict[str, Any], data: StudyData, split: int, eval_refs: int = 0,
                     device: str = "auto") -> dict[str, list[dict]]:
     """Greedy retrieval of split ``split``'s unseen test queries among the 13 benchmark objects,
-    with the first ``eval_refs`` references per object (0: all), for every variant and seed.
+    with the first ``eval_refs`` references per object (0: all), for every variant and seed
+    (:func:`evaluate_queries`). Returns label -> [result per seed] (each with "per_query", "per_object", "means")."""
+    bench = data.manifest.object_names("train")
+    queries = {n: data.test_q[n] for n in data.manifest.split_objects(split)}
+    return evaluate_queries(trained, data, queries, bench, eval_refs, device)
+
+
+def evaluate_queries(trained: dict[str, Any], data: StudyData, queries: dict[str, ObjectViews], bench: list[str],
+                     eval_refs: int = 0, device: str = "auto") -> dict[str, list[dict]]:
+    """Greedy retrieval of ``queries`` (object name -> views) among the references of the objects ``bench``
+    (the first ``eval_refs`` per object, 0: all), for every variant and seed.
 
     A model's per-query results are kept in its run folder (``evals/<key>.csv``, keyed by the
     weights, bank and queries; a zoo model's in the cache's ``evals/``), so a model shared by several
     notebooks is evaluated once.
     Returns label -> [result per seed] (each with "per_query", "per_object", "means")."""
-    bench = data.manifest.object_names("train")
-    queries = {n: data.test_q[n] for n in data.manifest.split_objects(split)}
     out: dict[str, list[dict]] = {}
     for label, ts in trained.items():
         out[label] = []
@@ -192,11 +201,11 @@ def seed_accuracies(results: dict[str, Any]) -> dict[str, list[float]]:
 
 
 def variant_table(trained: dict[str, Any], results: dict[str, Any],
-                  extra: dict[str, dict] | None = None) -> pd.DataFrame:
+                  extra: dict[str, dict] | None = None, part: str = "unseen") -> pd.DataFrame:
     """One row per variant: unseen Rota./Class. Acc. (%, mean over its seeds) with the Rota. Acc.'s 95 %
     bootstrap interval over queries (``ci95 lo`` / ``ci95 hi``, of the seed mean: the seeds answer the same
     queries), median error, queries, seeds with their Rota. Acc. and range, optimiser steps trained, run
-    folders (zoo names for zoo models), extras."""
+    folders (zoo names for zoo models), extras. ``part`` names the queries in the column names."""
     rows = []
     seeded = any(len(_as_list(v)) > 1 for v in results.values())
     for label, rs in results.items():
@@ -204,8 +213,8 @@ def variant_table(trained: dict[str, Any], results: dict[str, Any],
         mean = {k: float(np.mean([r["means"][k] for r in rs])) for k in ("rot_acc", "class_acc", "median_err_deg")}
         accs = [r["means"]["rot_acc"] for r in rs]
         _, ci = accuracy_ci(seed_mean([r["per_query"] for r in rs]))
-        row = {"variant": label, "unseen rot_acc": mean["rot_acc"], "ci95 lo": ci[0], "ci95 hi": ci[1],
-               "unseen class_acc": mean["class_acc"], "unseen median_err_deg": mean["median_err_deg"],
+        row = {"variant": label, f"{part} rot_acc": mean["rot_acc"], "ci95 lo": ci[0], "ci95 hi": ci[1],
+               f"{part} class_acc": mean["class_acc"], f"{part} median_err_deg": mean["median_err_deg"],
                "n_queries": rs[0]["means"]["n_queries"]}
         if seeded:
             row.update({"seeds": len(rs), "rot_acc per seed": ", ".join(f"{a:.1f}" for a in accs),
@@ -236,14 +245,15 @@ def claims_table(trend: dict) -> pd.DataFrame:
 
 
 def save_study(out_dir: Path, stem: str, table: pd.DataFrame, trend: dict, seeds: dict | None = None,
-               split: int | None = None, trained: dict[str, Any] | None = None) -> dict:
-    """Write ``<stem>.csv/.md`` and ``metrics.json`` ({table, trend, seeds, noise, models}) into ``out_dir``;
-    ``models`` is label -> [:func:`model_source` per seed] of ``trained``."""
+               split: int | None = None, trained: dict[str, Any] | None = None, extra: dict | None = None) -> dict:
+    """Write ``<stem>.csv/.md`` and ``metrics.json`` ({table, trend, seeds, noise, models} and ``extra``'s keys)
+    into ``out_dir``; ``models`` is label -> [:func:`model_source` per seed] of ``trained``."""
     write_table(table, Path(out_dir) / stem)
     out = {"table": table.to_dict(orient="records"), "trend": {k: v for k, v in trend.items() if v is not None},
            "seeds": seeds or {}, "noise": NOISE_NOTE, **({} if split is None else {"split": split}),
            **({} if trained is None else
-              {"models": {label: [model_source(t) for t in _as_list(ts)] for label, ts in trained.items()}})}
+              {"models": {label: [model_source(t) for t in _as_list(ts)] for label, ts in trained.items()}}),
+           **(extra or {})}
     atomic_write_json(Path(out_dir) / "metrics.json", out)
     return out
 

@@ -431,12 +431,19 @@ def model_for(split: int, train_cfg: TrainConfig, data: Any, val_refs: int, mode
     if models == "train":
         return train_or_load(split, train_cfg, data, val_refs_per_object=val_refs)
     name = find(split, train_cfg, zoo_dir, steps=zoo_steps)
-    model, e = load(name, device=train_cfg.device, zoo_dir=zoo_dir)
-    if e["data"]["image_size"] != data.cfg.image_size:
+    return named_model(name, data.cfg.image_size, train_cfg.device, zoo_dir)
+
+
+def named_model(name: str, image_size: int, device: str = "auto", zoo_dir: Path = ZOO_DIR
+                ) -> tuple[OrientationNet, Path, dict]:
+    """The zoo model ``name`` for ``image_size`` px crops (ValueError otherwise), as :func:`model_for` returns it:
+    (model in eval mode, its weight file, info with ``history``, ``zoo``, ``split`` and ``zoo_entry``)."""
+    model, e = load(name, device=device, zoo_dir=zoo_dir)
+    if e["data"]["image_size"] != image_size:
         raise ValueError(f"models='zoo': {name} takes {e['data']['image_size']} px crops, the data are "
-                         f"{data.cfg.image_size} px")
+                         f"{image_size} px")
     history = read_json(Path(zoo_dir) / e["history"])
-    return model, Path(zoo_dir) / e["file"], {"history": history, "zoo": name, "split": split,
+    return model, Path(zoo_dir) / e["file"], {"history": history, "zoo": name, "split": int(e["split"]),
                                               "train_images_per_s": e["train_images_per_s"], "zoo_entry": e}
 
 

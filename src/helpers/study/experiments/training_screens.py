@@ -1,0 +1,61 @@
+"""Notebook 12: training-regime screens, each arm a changed recipe against the current one (issue #44), decided
+on held-out views of the split's SEEN objects; the unseen test accuracy is reported afterwards."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from ...evaluation.claims import screen_claims
+from ..parameter_rules import check_model_choice, param_error, zoo_entries
+from ..report_format import ablation_section, claim_line, load_json, md_table
+from .base import Experiment
+
+TITLE = "Training-regime screens (issue #44; not in the paper)"
+
+
+def check(notebook: str, P: dict[str, Any]) -> None:
+    """Baseline and arms name zoo models of the notebook's crop size and split; arm labels are distinct."""
+    if not P["baseline"]:
+        raise param_error(notebook, "baseline", "a non-empty list of zoo models (one per seed)", P["baseline"])
+    labels = []
+    for a in P["arms"]:
+        if not (isinstance(a, list) and len(a) >= 2 and all(isinstance(x, str) for x in a)):
+            raise param_error(notebook, "arms", "a list of [label, zoo model, ...] lists (one model per seed)",
+                              P["arms"])
+        labels.append(a[0])
+    if len(set(labels)) != len(labels) or "current" in labels:
+        raise param_error(notebook, "arms", "distinct labels other than 'current'", labels)
+    zoo = zoo_entries()
+    for name in P["baseline"] + [m for a in P["arms"] for m in a[1:]]:
+        check_model_choice(notebook, "baseline/arms", name, P["image_size"])
+        if int(zoo[name]["split"]) != P["split"]:
+            raise param_error(notebook, "baseline/arms", f"zoo models trained on split {P['split']} "
+                              f"({name} is split {zoo[name]['split']})", name)
+    if P["screen_queries"] < 1:
+        raise param_error(notebook, "screen_queries", "an int >= 1", P["screen_queries"])
+
+
+def section(d: Path, claims: dict[str, dict]) -> list[str]:
+    """The screens' table and verdicts (held-out views of seen objects) and the unseen numbers afterwards."""
+    out = ablation_section(d, TITLE, "screens.png", "no such experiment (the paper trains one recipe); each arm "
+                           "is one change of the current recipe, kept only where it beats the current one on "
+                           "held-out views of SEEN objects by more than its interval and the seed spread")
+    m = load_json(d / "metrics.json")
+    if not m or "changes" not in m:
+        return out
+    out += ["What each arm changes:", "", *[f"- `{k}`: {v}" for k, v in m["changes"].items()], ""]
+    if (d / "afterwards.csv").exists():
+        out += ["Afterwards, never used to choose: the same models on the split's unseen test objects "
+                f"({m['afterwards_measured_on']}):", "", md_table(pd.read_csv(d / "afterwards.csv")), ""]
+        for cid in sorted(k for k in claims if k.startswith("screen_unseen:")):
+            out += claim_line(claims, cid, claims[cid]["claim"].split(" (")[0])
+        out.append("")
+    return out
+
+
+EXPERIMENT = Experiment("12_training_screens", "training-regime screens against the current recipe, decided on "
+                        "held-out views of seen objects (not in the paper)", claims=screen_claims, section=section,
+                        check=check)
