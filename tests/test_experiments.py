@@ -81,3 +81,19 @@ def test_the_screens_check_their_models(over, message):
     with pytest.raises(ParameterError, match=message):
         check_values("12_training_screens", _screens(**over))
     check_values("12_training_screens", _screens())
+
+
+def test_the_readme_headline_is_the_committed_claims():
+    """README.md's headline block is generated from reports/quick/claims.json: no number in it can go stale."""
+    import json
+
+    from helpers.study.readme import CLAIMS, README, block, current_block
+
+    assert current_block(README.read_text()) == block(json.loads(CLAIMS.read_text())), \
+        "README headline differs from reports/quick/claims.json: run `.venv/bin/python -m helpers.study.readme`"
+    lines = block(json.loads(CLAIMS.read_text())).splitlines()
+    assert len(lines) > 10 and all(ln.startswith("- ") for ln in lines[1:-1])
+
+
+def test_readme_stays_short():
+    assert len((REPO_ROOT / "README.md").read_text().splitlines()) <= 150

@@ -25,4 +25,5 @@ EXPERIMENT = Experiment(
     "05_ablation_fusion", "ablation: Avg / Sigmoid / Softmax / adaptive fusion (paper Fig. 6a)",
     claims=lambda d: ablation_claims(d, "fusion", paper.FUSION_SPLIT1),
     section=lambda d, claims: ablation_section(d, "Fusion (paper Fig. 6a)", "fusion.png", PAPER_TREND),
-    check=check)
+    check=check,
+    headline=(("fusion:adaptive_beats_avg", "Adaptive minus Avg fusion (split #1)"),))

@@ -23,4 +23,6 @@ EXPERIMENT = Experiment(
     "04_ablation_scales", "ablation: global vs single feature levels vs all three (paper Fig. 5a)",
     claims=lambda d: ablation_claims(d, "scales"),
     section=lambda d, claims: ablation_section(d, "Scales (paper Fig. 5a)", "scales.png", paper.SCALES_CLAIM),
-    check=check)
+    check=check,
+    headline=(("scales:multi_scale_beats_global", "Multi-scale minus a global descriptor (split #1)"),
+              ("scales:multi_scale_beats_32", "Multi-scale minus the finest level alone (split #1)")))

@@ -25,6 +25,8 @@ class Experiment:
         claims: its claims from its output folder, or None (it writes none).
         section: its REPORT.md section, or None (it has none).
         check: checks of parameter values only this notebook has, or None.
+        headline: the README's headline lines it contributes, as (claim id, label) pairs
+            (:mod:`helpers.study.readme` writes each from ``reports/quick/claims.json``; absent claims are skipped).
     """
 
     notebook: str
@@ -32,3 +34,4 @@ class Experiment:
     claims: ClaimsReader | None = None
     section: SectionWriter | None = None
     check: ParameterCheck | None = None
+    headline: tuple[tuple[str, str], ...] = ()

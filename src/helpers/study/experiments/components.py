@@ -14,4 +14,6 @@ EXPERIMENT = Experiment(
     "08_components", "ablation: local normalisation and the weighted loss (paper Table 5)",
     claims=lambda d: ablation_claims(
         d, "components", {paper.component_label(ln, wl): v for (ln, wl), v in paper.COMPONENTS_SPLIT1.items()}),
-    section=lambda d, claims: ablation_section(d, "Components (paper Table 5)", "components.png", PAPER_TREND))
+    section=lambda d, claims: ablation_section(d, "Components (paper Table 5)", "components.png", PAPER_TREND),
+    headline=(("components:both_beats_neither",
+               "Local normalisation and weighted loss, both minus neither (split #1)"),))
