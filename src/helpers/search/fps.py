@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..core.rotations import nearest
 from ..net import fusion_kernel
 
 TRACE_QUANTUM = 2.0 ** -24
@@ -77,3 +78,12 @@ def _fps_kernel():
     """The compiled FPS loop, or None (no compiler, disabled, or an older build without it)."""
     module = fusion_kernel.get()
     return getattr(module, "fps", None) if module is not None else None
+
+
+def anchor_coverage_deg(rots: np.ndarray, k: int) -> float:
+    """How densely ``k`` farthest-point anchors cover the rotations ``rots`` (N, 3, 3): the median over the
+    rotations of the geodesic angle to the nearest anchor, degrees (0 when every rotation is an anchor).
+    Fast search scores the anchors first, so this is how far its first stage may be from any answer."""
+    rots = np.asarray(rots, np.float64)
+    anchors = farthest_point_sampling(rots, k)
+    return float(np.degrees(np.median(nearest(rots, rots[anchors])[1])))

@@ -136,7 +136,7 @@ _CHOICES = {
     "lr_schedule": ("step", "cosine"),
     "random_ref": ("own", "any"),
     "fusion": FUSIONS,
-    "eval_method": ("fast", "greedy"),
+    "eval_method": ("fast", "greedy", "density"),
     "models": ("train", "zoo"),
 }
 
@@ -291,8 +291,11 @@ def configs_from(P: dict[str, Any]) -> StudyConfigs:
                             model=model)
     search = None
     if has(("k_ac", "fps_k", "n_references")):
-        search = paper_ratio_search(P["n_references"], P["k_ac"], P["fps_k"], method=P.get("eval_method", "fast"),
-                                    group=P.get("group", 1024))
+        # "density": fast search at these settings is the candidate; notebook 03 keeps it or takes greedy by
+        # the anchors' coverage of the references (helpers.study.protocol.density_matched_search)
+        method = P.get("eval_method", "fast")
+        search = paper_ratio_search(P["n_references"], P["k_ac"], P["fps_k"],
+                                    method="fast" if method == "density" else method, group=P.get("group", 1024))
     return StudyConfigs(data, train, search)
 
 

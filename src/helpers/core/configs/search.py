@@ -64,6 +64,8 @@ GREEDY = SearchConfig(method="greedy")
 #: The paper's fast-retrieval budget as ratios: 1,024 anchors of 10,000 references per object, and 256
 #: references scored per refinement step out of 1,024 anchors.
 PAPER_ANCHOR_RATIO = 1024 / 10000
+#: The paper's references per object and fast search's anchors among them.
+PAPER_N_REFS, PAPER_K_AC = 10000, 1024
 PAPER_FPS_RATIO = 256 / 1024
 
 

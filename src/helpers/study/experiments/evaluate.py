@@ -26,6 +26,7 @@ def section(d: Path, claims: dict[str, dict]) -> list[str]:
            *claim_line(claims, "occlusion_hurts", "occlusion hurts (unseen minus occluded)"),
            *_held_out_line(m["held_out"], claims.get("held_out_rot_acc")), "",
            "![bars](03_evaluate/table1_bars.png)", "", "### Baselines", "", md_table(t2), ""]
+    out += _protocol_search(m.get("protocol_search"))
     out += _calibration(claims)
     out += claim_line(claims, "ours_minus_hog", "ours beats HOG (ours minus HOG, the study's search for both, paired)")
     out += claim_line(claims, "ours_minus_global", "ours beats the Global descriptor (ours minus Global, paired)")
@@ -36,6 +37,17 @@ def section(d: Path, claims: dict[str, dict]) -> list[str]:
     if byo:
         out += [_byo_line(byo, claims.get("byo_rot_acc")), "", "![byo](03_evaluate/byo_overlay.png)", ""]
     return out
+
+
+def _protocol_search(ps: dict | None) -> list[str]:
+    """How ``eval_method="density"`` chose the protocol's search (nothing for the other settings)."""
+    if not ps:
+        return []
+    return [f"**The protocol's search is {ps['chosen']}**, chosen from the reference rotations alone: fast search's "
+            f"{ps['k_ac']} anchors (the paper's ratio) cover the {ps['n_refs']} references per object at a median "
+            f"{ps['anchor_coverage_deg']:.1f}° to the nearest anchor, the paper's {ps['paper']} at "
+            f"{ps['paper_anchor_coverage_deg']:.1f}°; fast search is the paper's only at the paper's density, so "
+            "below it every reference is scored (greedy).", ""]
 
 
 def _calibration(claims: dict[str, dict]) -> list[str]:
