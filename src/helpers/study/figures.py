@@ -194,10 +194,20 @@ def reference_count_figure(df, split: int, path: str | os.PathLike) -> Path:
     for (how, g), colour in zip(df.groupby(list(searches), sort=False), ("tab:blue", "tab:green")):
         ax.plot(g["refs_per_object"], g["unseen rot_acc"], "o-", color=colour, label=f"Rota. Acc., {how} (%)")
         ax2.plot(g["refs_per_object"], g["queries/s"], "s--", color=colour, alpha=0.6, label=f"queries/s, {how}")
-    ax.set_xscale("log")
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter, NullLocator  # after _plt picks Agg
+
+    counts = sorted({int(c) for c in df["refs_per_object"]})
+    ax.set_xscale("log", base=2)
+    # One plain label per count measured, and no minor labels: log axes otherwise print "3x10^1 4x10^1 ..." over
+    # each other on both axes.
+    ax.xaxis.set_major_locator(FixedLocator(counts))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:,.0f}"))
+    ax.xaxis.set_minor_locator(NullLocator())
     ax.set_xlabel("references per object")
     ax.set_ylabel("unseen Rota. Acc. (%)")
     ax2.set_yscale("log")
+    ax2.yaxis.set_minor_formatter(NullFormatter())
+    ax2.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax2.set_ylabel("queries/s (dashed)")
     ax.legend(fontsize=7, loc="upper left")
     ax.set_title(f"Reference count, split #{split} unseen (cf. paper Fig. 7)", fontsize=9)
