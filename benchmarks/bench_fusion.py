@@ -17,7 +17,7 @@ from bench_train import _model
 from timing import log, measure, wait_quiet
 
 if TYPE_CHECKING:
-    from bench import BenchConfig
+    from bench_config import BenchConfig
 
 
 def bench_gemm(cfg: BenchConfig) -> dict:

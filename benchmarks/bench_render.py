@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 from timing import log, measure, wait_quiet
 
 if TYPE_CHECKING:
-    from bench import BenchConfig
+    from bench_config import BenchConfig
 
 
 def bench_render(cfg: BenchConfig, tmp_root: str | None = None) -> dict:

@@ -26,7 +26,7 @@ from bench_train import _model
 from timing import Probe, gate, log, memory_snapshot, wait_quiet
 
 if TYPE_CHECKING:
-    from bench import BenchConfig
+    from bench_config import BenchConfig
 
 # Paper setting the targets refer to.
 PAPER_OBJECTS = 13

@@ -21,7 +21,7 @@ import numpy as np
 from timing import Probe, gate, log, measure, wait_quiet
 
 if TYPE_CHECKING:
-    from bench import BenchConfig
+    from bench_config import BenchConfig
 
 
 def _model(size: int, seed: int = 0, monotone: bool = False):

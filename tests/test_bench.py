@@ -144,3 +144,26 @@ def test_a_skipped_headline_bank_is_an_unmet_target():
     assert t["c2f_s_per_query_13x10000"]["met"] is None  # its numbers are absent, with the same reason
     assert "bank_13x10000_measured" not in bench.evaluate_targets({"retrieval_synthetic": {"banks": {}},
                                                                    "cache_bytes_13x10000": {}})
+
+
+def test_benchmarks_have_no_import_circle():
+    """The benchmark modules import each other only downwards (their shared sizes live in bench_config.py)."""
+    import ast
+
+    here = Path(__file__).resolve().parents[1] / "benchmarks"
+    names = {p.stem for p in here.glob("*.py")}
+    graph = {}
+    for p in here.glob("*.py"):
+        deps = set()
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.Import):
+                deps |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                deps.add(node.module.split(".")[0])
+        graph[p.stem] = deps & names - {p.stem}
+
+    def reaches(a: str, b: str, seen: set) -> bool:
+        return any(d == b or (d not in seen and reaches(d, b, seen | {d})) for d in graph[a])
+
+    circles = sorted(m for m in graph if reaches(m, m, {m}))
+    assert not circles, f"benchmark modules in an import circle: {circles}"
