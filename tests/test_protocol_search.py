@@ -31,3 +31,16 @@ def test_density_parameter_builds_the_fast_candidate():
     P = {"n_references": 512, "k_ac": 0, "fps_k": 0, "eval_method": "density"}
     s = configs_from(P).search
     assert s.method == "fast" and s.k_ac == 52
+
+
+def test_stale_files_of_the_protocols_own_search_are_dropped(tmp_path):
+    from helpers.core.configs import GREEDY
+    from helpers.study.protocol import drop_stale_search_files
+
+    for name in ("per_query_ours.csv", "per_query_ours_fast.csv", "per_query_hog_greedy.csv",
+                 "per_query_ours_greedy.csv", "per_query_ours_short_budget.csv"):
+        (tmp_path / name).write_text("x\n")
+    gone = drop_stale_search_files(tmp_path, GREEDY)
+    assert sorted(p.name for p in gone) == ["per_query_hog_greedy.csv", "per_query_ours_greedy.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["per_query_ours.csv", "per_query_ours_fast.csv",
+                                                          "per_query_ours_short_budget.csv"]

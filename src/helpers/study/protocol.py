@@ -13,6 +13,7 @@ references (:func:`searches_table`: Table 1 like with like). Percentages through
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -128,6 +129,16 @@ def density_matched_search(search: SearchConfig, rotations: np.ndarray, seed: in
     return chosen, {"n_refs": int(len(rotations)), "k_ac": int(fast.k_ac), "anchor_coverage_deg": round(ours_deg, 2),
                     "paper_anchor_coverage_deg": round(paper_deg, 2), "paper": f"{PAPER_K_AC} of {PAPER_N_REFS}",
                     "chosen": chosen.method}
+
+
+def drop_stale_search_files(out_dir: Path, search: SearchConfig) -> list[Path]:
+    """Remove ``per_query_<method>_<search>.csv`` files named after the protocol's OWN search in ``out_dir``: they
+    are an earlier run's (written when the protocol used the other search), and the claims would read them as this
+    run's other-search answers. Returns the removed paths."""
+    gone = [f for f in Path(out_dir).glob(f"per_query_*_{search.method}.csv") if f.is_file()]
+    for f in gone:
+        f.unlink()
+    return gone
 
 
 def other_search(search: SearchConfig) -> SearchConfig:
