@@ -18,6 +18,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.distance import pdist
 
+from ..core.fileio import sha256_file
 from .manifest import Manifest, ManifestError, load_manifest, verify_file
 
 #: Diameter (metres) every manifest object is scaled to.
@@ -102,6 +103,22 @@ def set_color(mesh: trimesh.Trimesh, rgb: tuple[float, float, float]) -> trimesh
     rgba = np.array([*rgb, 1.0]) * 255
     mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=np.tile(rgba.astype(np.uint8), (len(mesh.faces), 1)))
     return mesh
+
+
+def custom_object(mesh_path: str | os.PathLike, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
+                  sha256: str | None = None) -> ObjectMesh:
+    """An ObjectMesh from any mesh file, normalised like the manifest objects (a user's mesh, bring-your-own, the
+    symmetry rule's ``--mesh``). ``color=None`` keeps the file's texture/colours. Every error names the file."""
+    try:
+        mesh = load_mesh_file(mesh_path)
+        if color is not None:
+            mesh = set_color(mesh, color)
+        mesh = normalise(mesh)
+    except (ValueError, FileNotFoundError) as e:
+        if str(mesh_path) in str(e):
+            raise
+        raise type(e)(f"mesh file {mesh_path}: {e}") from None
+    return ObjectMesh(Path(mesh_path).stem, mesh, 0.2, color is None, sha256 or sha256_file(mesh_path), np.eye(3)[None])
 
 
 def load_object(name: str, manifest: Manifest | None = None, diameter: float = DEFAULT_DIAMETER_M) -> ObjectMesh:

@@ -35,7 +35,7 @@ from ..core.locks import entry_lock, made_by
 from ..core.paths import cache_dir
 from ..core.rotations import geodesic_deg, haar_uniform
 from ..core.views import ObjectViews
-from ..data.meshes import ObjectMesh, load_mesh_file, normalise, set_color
+from ..data.meshes import ObjectMesh, custom_object
 from ..data.render import render_reference
 from ..data.symmetry.rule import RULE_VERSION, SymmetryRule, describe, find_symmetries
 from ..evaluation.metrics import rotation_errors_deg, rotation_text
@@ -126,24 +126,6 @@ def pad_to_square(img: np.ndarray) -> np.ndarray:
     s = max(h, w)
     top, left = (s - h) // 2, (s - w) // 2
     return np.pad(img, ((top, s - h - top), (left, s - w - left), (0, 0)))
-
-
-def custom_object(mesh_path: str | os.PathLike, color: tuple[float, float, float] | None = (0.7, 0.7, 0.7),
-                  sha256: str | None = None) -> ObjectMesh:
-    """An ObjectMesh from any mesh file (normalised like the manifest objects).
-
-    ``color=None`` keeps the file's texture/colours. Every error names the file.
-    """
-    try:
-        mesh = load_mesh_file(mesh_path)
-        if color is not None:
-            mesh = set_color(mesh, color)
-        mesh = normalise(mesh)
-    except (ValueError, FileNotFoundError) as e:
-        if str(mesh_path) in str(e):
-            raise
-        raise type(e)(f"mesh file {mesh_path}: {e}") from None
-    return ObjectMesh(Path(mesh_path).stem, mesh, 0.2, color is None, sha256 or sha256_file(mesh_path), np.eye(3)[None])
 
 
 def _refset_key(sha: str, n: int, seed: int, cfg: RenderConfig, textured: bool) -> str:

@@ -146,7 +146,8 @@ def _evals_dir(t: Trained, data: StudyData) -> Path:
 def _eval_cache_key(t: Trained, data: StudyData, bench: list[str], queries: dict, eval_refs: int) -> str:
     # The symmetries the errors are scored under are part of the key: a table scored before an object's
     # symmetries were declared (or changed) is not reused.
-    sym = {n: [data.manifest.object(n).symmetries, data.manifest.object(n).symmetry_axes] for n in queries}
+    entries = {n: data.manifest.object(n) for n in queries}
+    sym = {n: [e.symmetries, e.symmetry_axes] for n, e in entries.items()}
     return stable_hash({"model": model_fingerprint(t.model), "bank": [data.key(n) for n in bench],
                         "eval_refs": eval_refs, "queries": {n: [v.meta.get("key"), len(v)] for n, v in queries.items()},
                         "method": "greedy", "threshold_deg": 30.0, "symmetries": sym, "columns": "R_est,R_gt"})

@@ -16,12 +16,11 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 from tqdm.auto import tqdm
 
 from ...core.paths import REPO_ROOT
 from ..manifest import ManifestError, load_manifest
-from ..meshes import ObjectMesh, load_mesh_file, load_object, normalise, set_color
+from ..meshes import ObjectMesh, custom_object, load_object
 from ..parts import PARTS, load_part, spec
 from .figure import write_figure
 from .manifest_io import write_section
@@ -48,10 +47,9 @@ def _fail(msg: str) -> int:
 
 def _mesh_object(path: str) -> ObjectMesh:
     try:
-        mesh = set_color(normalise(load_mesh_file(path)), (0.7, 0.7, 0.7))
+        return custom_object(path)
     except (OSError, ValueError) as e:
         raise SystemExit(_fail(str(e))) from None
-    return ObjectMesh(Path(path).stem, mesh, 0.2, False, "", np.eye(3)[None])
 
 
 def run_parts(rule: SymmetryRule) -> int:
