@@ -46,7 +46,8 @@ def headline_lines(claims: list[dict]) -> list[str]:
     for e in REGISTRY:
         for cid, label in e.headline:
             if cid.endswith("*"):  # every claim with this prefix, named by the rest of its id
-                found = [(c, f"{label} {c['id'][len(cid) - 1:]}") for c in claims if c["id"].startswith(cid[:-1])]
+                found = [(c, f"{label} {c['id'][len(cid) - 1:].replace('_beats_', ' against ')}") for c in claims
+                         if c["id"].startswith(cid[:-1]) and ":seed_noise:" not in c["id"]]
             else:
                 found = [(by_id[cid], label)] if cid in by_id else []
             out += [f"- {lab}: {_number(c)} — **{c['verdict']}** (`{c['id']}`, {e.notebook})" for c, lab in found]
