@@ -76,6 +76,7 @@ def _screens(**over):
     ({"arms": [["x", "split2"]]}, "zoo models trained on split 1 \\(split2 is split 2\\)"),
     ({"arms": [["x", "no-such-model"]]}, "a zoo model among"),
     ({"image_size": 128}, "image_size=128"),
+    ({"arms": [["x", "models/avg.pt"]]}, "zoo model names \\(their recipes are compared\\)"),
 ])
 def test_the_screens_check_their_models(over, message):
     with pytest.raises(ParameterError, match=message):

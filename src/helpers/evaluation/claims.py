@@ -178,6 +178,11 @@ def _budget_claims(d: Path, unseen: pd.DataFrame, seen: pd.DataFrame) -> list[di
     return out
 
 
+def _seed_fields(p: dict) -> dict:
+    """The training-seed fields of a paired claim (:func:`helpers.evaluation.stats.claim`), rounded."""
+    return {k: _round(p[k]) for k in ("seeds", "matched_seeds", "per_seed_diff_pts", "seed_spread_pts")}
+
+
 def ablation_claims(d: Path, prefix: str, paper_values: dict[str, float] | None = None) -> list[dict]:
     """One record per paired claim in an ablation notebook's ``metrics.json`` trend
     (:func:`helpers.evaluation.stats.claim` / ``chain`` dicts, their verdicts as computed there)."""
@@ -197,9 +202,8 @@ def ablation_claims(d: Path, prefix: str, paper_values: dict[str, float] | None 
             if paper_values and better in paper_values and worse in paper_values:
                 pv = round(paper_values[better] - paper_values[worse], 2)
             cid = f"{prefix}:{key}" if len(pairs) == 1 else f"{prefix}:{key}:{better}>{worse}"
-            extra = {k: _round(p[k]) for k in ("seeds", "matched_seeds", "per_seed_diff_pts", "seed_spread_pts")}
             out.append(record(cid, f"{better} beats {worse} ({measured_on}, points, paired)",
-                              pv, p["diff_pts"], p["ci"], p["verdict"], **extra))
+                              pv, p["diff_pts"], p["ci"], p["verdict"], **_seed_fields(p)))
     for label, c in (m.get("seeds") or {}).items():
         out.append(record(f"{prefix}:seed_noise:{label}", f"training noise: {c['compare']} ({measured_on}, points, "
                           "paired)", None, c["diff_pts"], c["ci"], MEASURED))
@@ -216,10 +220,9 @@ def screen_claims(d: Path, prefix: str = "screen") -> list[dict]:
         if not isinstance(p, dict):
             continue
         better, worse = p["compare"].split(" vs ")
-        extra = {k: _round(p[k]) for k in ("seeds", "matched_seeds", "per_seed_diff_pts", "seed_spread_pts") if k in p}
         out.append(record(f"{prefix}_unseen:{key}", f"afterwards, not used to choose: {better} minus {worse} "
                           f"({m['afterwards_measured_on']}, points, paired)", None, p["diff_pts"], p["ci"], MEASURED,
-                          **extra))
+                          **_seed_fields(p)))
     return out
 
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.configs import DataConfig, SearchConfig
+from ..core.configs import LATER_DEFAULTS, DataConfig, SearchConfig
 from ..core.device import resolve_device
 from ..core.fileio import DamagedEntry, atomic_write_json, check_sha256, read_json, sha256_file, stable_hash, touch
 from ..core.locks import entry_lock, made_by, settle
@@ -247,8 +247,9 @@ def _train_key(cfg: Any) -> dict:
     d = cfg.to_dict() if hasattr(cfg, "to_dict") else asdict(cfg)
     for k in ("device", "progress", "num_threads", "val_batch_size"):
         d.pop(k, None)
-    if not d.get("symmetry_aware", True):  # added later: the default keeps earlier runs' folders
-        d.pop("symmetry_aware")
+    for k, v in LATER_DEFAULTS.items():  # added later: at their default, earlier runs keep their folders
+        if k in d and d[k] == v:
+            d.pop(k)
     return d
 
 

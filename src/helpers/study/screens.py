@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..core.configs import LATER_DEFAULTS
 from ..core.views import ObjectViews
 from ..data.datasets import ViewSetSpec, render_sets
 from ..data.render import query_style
@@ -60,8 +61,7 @@ def changes(trained: dict[str, list[Trained]]) -> dict[str, str]:
                 d.update({f"{k}.{kk}": vv for kk, vv in v.items()})
             else:
                 d[k] = v
-        d.setdefault("symmetry_aware", False)  # entries written before the switch existed
-        return d
+        return {**LATER_DEFAULTS, **d}  # entries written before a field existed were trained at its default
 
     base = flat(trained[CURRENT][0].info["zoo_entry"])
     out = {}

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 import yaml
 
-from ..core.configs import DataConfig, ModelConfig, TrainConfig
+from ..core.configs import LATER_DEFAULTS, DataConfig, ModelConfig, TrainConfig
 from ..core.device import resolve_device
 from ..core.fileio import atomic_write_bytes, atomic_write_json, atomic_write_text, read_json, sha256_file
 from ..core.paths import REPO_ROOT
@@ -391,8 +391,6 @@ MODEL_SOURCES = ("train", "zoo")
 # TrainConfig fields that make an ablation variant (besides the architecture): a zoo model stands
 # in for a requested variant only when these and its model config are the same.
 _VARIANT_FIELDS = ("seed", "weighted_loss", "occlusion", "random_ref", "symmetry_aware")
-#: Defaults of variant fields that zoo entries written before the field existed lack.
-_VARIANT_DEFAULTS = {"symmetry_aware": False}
 
 
 def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR, steps: int = 0) -> str:
@@ -404,7 +402,7 @@ def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR, steps: int
     zoo = entries(zoo_dir)
     found = {name: int(e["steps"]) for name, e in zoo.items()
              if e["split"] == split and ModelConfig.from_dict(e["train"]["model"]).to_dict() == want
-             and all(e["train"].get(f, _VARIANT_DEFAULTS.get(f)) == getattr(train_cfg, f) for f in _VARIANT_FIELDS)
+             and all(e["train"].get(f, LATER_DEFAULTS.get(f)) == getattr(train_cfg, f) for f in _VARIANT_FIELDS)
              and e["train"].get("augment", train_cfg.augment.to_dict()) == train_cfg.augment.to_dict()}
     if found and steps:
         for name, n in found.items():

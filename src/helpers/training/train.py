@@ -31,7 +31,7 @@ import torch
 from torch.nn.parallel import DistributedDataParallel
 from tqdm.auto import tqdm
 
-from ..core.configs import ModelConfig, TrainConfig
+from ..core.configs import LATER_DEFAULTS, ModelConfig, TrainConfig
 from ..core.device import resolve_device
 from ..core.fileio import DamagedEntry, atomic_write_bytes, atomic_write_text
 from ..core.views import ObjectViews
@@ -46,8 +46,6 @@ from .validation import plot_history, selection_metric, validate
 # precision: a run resumed on a machine without native bf16 goes on in float32 (each history entry
 # records the precision its epoch used).
 _RESUMABLE_CHANGES = {"epochs", "device", "num_threads", "val_every", "progress", "val_batch_size", "precision"}
-# Fields added after checkpoints were written: a checkpoint without one was trained with its default.
-_LATER_DEFAULTS = {"symmetry_aware": False}
 
 
 @dataclass
@@ -293,7 +291,7 @@ def _setup(cfg: TrainConfig, names: list[str], train_refs: dict[str, ObjectViews
 def _resume(run: _Run, cfg: TrainConfig, last_path: Path) -> None:
     """Continue from ``last.pt``: weights, optimiser, schedule, history, best epoch and both random streams."""
     ck = read_checkpoint(last_path, run.device)
-    old, new = {**_LATER_DEFAULTS, **ck["config"]}, cfg.to_dict()
+    old, new = {**LATER_DEFAULTS, **ck["config"]}, cfg.to_dict()
     diff = sorted(k for k in new if k not in _RESUMABLE_CHANGES and old.get(k) != new[k])
     if diff:
         raise ValueError(f"resume: {last_path} was trained with a different config "

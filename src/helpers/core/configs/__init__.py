@@ -17,10 +17,10 @@ from .data import QUERY_STYLES, SCENES, DataConfig, QueryStyle, RenderConfig, Tl
 from .model import FUSIONS, LEVELS, ModelConfig, level_shapes, parse_scales
 from .search import (GREEDY, PAPER_ANCHOR_RATIO, PAPER_FPS_RATIO, PAPER_K_AC, PAPER_N_REFS, SCHEDULES, SEARCH_METHODS, HogConfig, SearchConfig,
                      paper_ratio_search)
-from .train import LR_SCHEDULES, RANDOM_REF, SELECT_ON, AugmentConfig, TrainConfig
+from .train import LATER_DEFAULTS, LR_SCHEDULES, RANDOM_REF, SELECT_ON, AugmentConfig, TrainConfig
 
 __all__ = ["QUERY_STYLES", "SCENES", "DataConfig", "QueryStyle", "RenderConfig", "TlessConfig",
            "FUSIONS", "LEVELS", "ModelConfig", "level_shapes", "parse_scales",
            "GREEDY", "PAPER_ANCHOR_RATIO", "PAPER_FPS_RATIO", "SCHEDULES", "SEARCH_METHODS", "HogConfig",
-           "SearchConfig", "paper_ratio_search", "PAPER_N_REFS", "PAPER_K_AC",
+           "SearchConfig", "paper_ratio_search", "LATER_DEFAULTS", "PAPER_N_REFS", "PAPER_K_AC",
            "LR_SCHEDULES", "RANDOM_REF", "SELECT_ON", "AugmentConfig", "TrainConfig"]

@@ -77,6 +77,9 @@ class AugmentConfig:
 SELECT_ON = ("mean_acc", "rot_acc")
 RANDOM_REF = ("own", "any")
 LR_SCHEDULES = ("step", "cosine")
+#: TrainConfig fields added after checkpoints, zoo entries and run folders were written, with the default those
+#: were trained with: a record without the field means this value, and a run at it keeps its earlier folder key.
+LATER_DEFAULTS = {"symmetry_aware": False}
 
 
 @dataclass

@@ -31,6 +31,9 @@ def check(notebook: str, P: dict[str, Any]) -> None:
     zoo = zoo_entries()
     for name in P["baseline"] + [m for a in P["arms"] for m in a[1:]]:
         check_model_choice(notebook, "baseline/arms", name, P["image_size"])
+        if name not in zoo:  # a checkpoint file: the screens read each model's recipe from its zoo entry
+            raise param_error(notebook, "baseline/arms", f"zoo model names (their recipes are compared), among "
+                              f"{sorted(zoo)}", name)
         if int(zoo[name]["split"]) != P["split"]:
             raise param_error(notebook, "baseline/arms", f"zoo models trained on split {P['split']} "
                               f"({name} is split {zoo[name]['split']})", name)
