@@ -171,9 +171,9 @@ def ensure_render_helpers_importable() -> dict:
 
 def paper_parameters() -> tuple[dict, str]:
     """The paper preset's parameters of notebook 02_train (declared defaults + presets/paper yaml)."""
-    from helpers.study.runner import preset_parameters
+    from helpers.study.cli.runner import preset_parameters
 
-    src = f"helpers.study.runner.preset_parameters({PRESET!r}, {PRESET_NOTEBOOK!r})"
+    src = f"helpers.study.cli.runner.preset_parameters({PRESET!r}, {PRESET_NOTEBOOK!r})"
     return dict(preset_parameters(PRESET, PRESET_NOTEBOOK)), src
 
 

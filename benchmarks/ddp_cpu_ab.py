@@ -2,7 +2,7 @@
 """Training throughput on CPU: one process with 2 threads (A, today's default) vs data-parallel
 training over 2 gloo processes with 1 thread each (B), the same global batch.
 
-B is ``helpers.training.train.train`` under torch.distributed exactly as ``helpers.study.ddp_train`` runs it
+B is ``helpers.training.train.train`` under torch.distributed exactly as ``helpers.study.cli.ddp_train`` runs it
 (DistributedDataParallel, each process encodes its share of the 3B images and all-gathers the
 features, so both compute the full B x 2B loss; gradients averaged): the same math as A up to
 the order of float32 sums (tests/test_ddp.py). C, for context, is one process with one thread:

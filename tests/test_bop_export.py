@@ -10,7 +10,7 @@ from helpers.data.bop import iter_scene_instances, load_bop_views, load_models_i
 from helpers.data.bop_export import export_tless_like, read_results_csv, tless_like_results, write_results_csv
 from helpers.data.tless import load_tless
 from helpers.evaluation.baselines import HogModel
-from helpers.study.tless_protocol import evaluate_tless
+from helpers.study.protocols.tless import evaluate_tless
 
 pytestmark = pytest.mark.gl
 

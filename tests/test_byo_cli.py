@@ -1,4 +1,4 @@
-"""``python -m helpers.study.byo MESH CROP``: a rotation, its quaternion, the score and the next best."""
+"""``python -m helpers.study.cli.byo MESH CROP``: a rotation, its quaternion, the score and the next best."""
 
 import json
 
@@ -9,6 +9,7 @@ import pytest
 from helpers.core.configs import RenderConfig
 from helpers.core.rotations import geodesic_deg
 from helpers.study import byo
+from helpers.study.cli import byo as byo_cli
 
 pytestmark = pytest.mark.gl
 
@@ -24,7 +25,7 @@ def test_cli_finds_the_rotation_of_a_rendered_view_and_names_bad_paths(tmp_path,
     out_png = tmp_path / "overlay.png"
     args = [str(mesh), str(crop), "--model", "split1", "--refs", "64", "--device", "cpu",
             "--cache", str(tmp_path / "c"), "--out", str(out_png)]
-    assert byo.main(args + ["--json"]) == 0
+    assert byo_cli.main(args + ["--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert geodesic_deg(np.array(res["R_m2c"]), R[10].astype(np.float64)) < 30.0
     w, x, y, z = res["quaternion_wxyz"]
@@ -38,10 +39,10 @@ def test_cli_finds_the_rotation_of_a_rendered_view_and_names_bad_paths(tmp_path,
     for d, E in zip(sym["discrete"], res["equivalent_R_m2c"]):
         assert 45.0 <= d["angle_deg"] <= 315.0
         assert abs(geodesic_deg(np.array(E), np.array(res["R_m2c"])) - min(d["angle_deg"], 360 - d["angle_deg"])) < 1e-3
-    assert byo.main(args) == 0  # text form, second call from the cache
+    assert byo_cli.main(args) == 0  # text form, second call from the cache
     text = capsys.readouterr().out
     assert "quaternion (w, x, y, z)" in text and "next best" in text and "equally right" in text
-    assert byo.main([str(tmp_path / "nope.obj"), str(crop), "--model", "split1", "--device", "cpu"]) == 2
+    assert byo_cli.main([str(tmp_path / "nope.obj"), str(crop), "--model", "split1", "--device", "cpu"]) == 2
     assert "nope.obj does not exist" in capsys.readouterr().err
-    assert byo.main([str(mesh), str(tmp_path / "nope.png"), "--model", "split1", "--device", "cpu"]) == 2
+    assert byo_cli.main([str(mesh), str(tmp_path / "nope.png"), "--model", "split1", "--device", "cpu"]) == 2
     assert "nope.png does not exist" in capsys.readouterr().err

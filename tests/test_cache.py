@@ -18,7 +18,7 @@ import pytest
 
 from helpers.core.fileio import DamagedEntry
 from helpers.core.locks import LockTimeout, entry_lock, is_locked
-from helpers.study import cache as cache_cli
+from helpers.study.cli import cache as cache_cli
 
 pytestmark = pytest.mark.gl
 WORKER = Path(__file__).with_name("cache_worker.py")
@@ -208,7 +208,7 @@ def test_two_smoke_runners_on_one_cache_both_succeed(tmp_path):
     The other notebooks build no other kind of entry and nbval runs every notebook anyway, so they are
     left out to keep CI short."""
     env = {**ENV, "HELPERS_CACHE_DIR": str(tmp_path / "cache")}
-    cmd = [sys.executable, "-m", "helpers.study.runner", "smoke", "--no-html",
+    cmd = [sys.executable, "-m", "helpers.study.cli.runner", "smoke", "--no-html",
            "--only", "01_render", "02_train", "03_evaluate", "09_tless"]
     t0 = time.monotonic()
     procs = [subprocess.Popen(cmd + ["--reports", str(tmp_path / f"reports{k}")], env=env, stdout=subprocess.PIPE,

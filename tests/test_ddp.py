@@ -150,7 +150,7 @@ def test_torchrun_launcher_trains_the_smoke_model_on_two_cpu_processes(tmp_path)
     env = {**os.environ, "HELPERS_CACHE_DIR": str(tmp_path / "cache"), "OMP_NUM_THREADS": "1",
            "TMPDIR": str(tmp_path / "tmp")}
     r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2",
-                        f"--master_port={_free_port()}", "-m", "helpers.study.ddp_train", "--preset", "smoke"],
+                        f"--master_port={_free_port()}", "-m", "helpers.study.cli.ddp_train", "--preset", "smoke"],
                        env=env, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-4000:]
     assert "[ddp_train] 2 processes (gloo)" in r.stdout
@@ -160,7 +160,7 @@ def test_torchrun_launcher_trains_the_smoke_model_on_two_cpu_processes(tmp_path)
 
 
 def test_launcher_refuses_to_run_without_torchrun(capsys, monkeypatch):
-    from helpers.study import ddp_train
+    from helpers.study.cli import ddp_train
 
     monkeypatch.delenv("RANK", raising=False)
     assert ddp_train.main(["--preset", "smoke"]) == 2

@@ -9,7 +9,7 @@ from helpers.core.paths import REPO_ROOT
 from helpers.study.experiments import REGISTRY, experiment
 from helpers.study.parameter_rules import ParameterError
 from helpers.study.parameters import check_values
-from helpers.study.runner import notebooks
+from helpers.study.cli.runner import notebooks
 
 EVALUATION = REPO_ROOT / "src" / "helpers" / "evaluation"
 
@@ -88,10 +88,10 @@ def test_the_readme_headline_is_the_committed_claims():
     """README.md's headline block is generated from reports/quick/claims.json: no number in it can go stale."""
     import json
 
-    from helpers.study.readme import CLAIMS, README, block, current_block
+    from helpers.study.cli.readme import CLAIMS, README, block, current_block
 
     assert current_block(README.read_text()) == block(json.loads(CLAIMS.read_text())), \
-        "README headline differs from reports/quick/claims.json: run `.venv/bin/python -m helpers.study.readme`"
+        "README headline differs from reports/quick/claims.json: run `.venv/bin/python -m helpers.study.cli.readme`"
     lines = block(json.loads(CLAIMS.read_text())).splitlines()
     assert len(lines) > 10 and all(ln.startswith("- ") for ln in lines[1:-1])
 

@@ -1,4 +1,4 @@
-"""The explorer's steps (helpers.study.explore) and panels (helpers.study.explore_ui) on a tiny untrained network."""
+"""The explorer's steps (helpers.study.explorer.query) and panels (helpers.study.explorer.panels) on a tiny untrained network."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from helpers.core.rotations import haar_uniform
 from helpers.core.views import ObjectViews
 from helpers.net.model import OrientationNet
 from helpers.search.bank import ReferenceBank
-from helpers.study.explore import Explorer, figure_png, inspect_query, query_figure
-from helpers.study.explore_ui import byo_panel, query_panel
+from helpers.study.explorer.query import Explorer, figure_png, inspect_query, query_figure
+from helpers.study.explorer.panels import byo_panel, query_panel
 from helpers.study.parameters import ParameterError, check_values, declared_parameters, notebook_path
 from helpers.study.pipeline import encode_queries
 

@@ -14,7 +14,8 @@ from helpers.core.configs import ModelConfig
 from helpers.core.views import ObjectViews
 from helpers.net.model import OrientationNet
 from helpers.search.features import FeatureCache
-from helpers.study import byo, runner
+from helpers.study import byo
+from helpers.study.cli import runner
 from helpers.study.parameters import ParameterError, check_parameters, check_values
 
 # ------------------------------------------------------------------ parameter values and the runner

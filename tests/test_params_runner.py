@@ -10,7 +10,7 @@ from helpers.study.parameters import (
     notebook_path,
     parameters_source,
 )
-from helpers.study.runner import notebooks, preset_parameters
+from helpers.study.cli.runner import notebooks, preset_parameters
 
 
 def test_every_notebook_has_a_literal_parameters_cell():
@@ -105,7 +105,7 @@ def test_all_presets_validate_and_bad_preset_is_refused(tmp_path, monkeypatch):
             assert p["out_dir"] == f"reports/{preset}/{n}"
     with pytest.raises(ParameterError, match="preset must be one of"):
         preset_parameters("huge", "02_train")
-    import helpers.study.runner as r
+    import helpers.study.cli.runner as r
 
     (tmp_path / "quick").mkdir()
     (tmp_path / "quick" / "02_train.yaml").write_text("epochs: ten\n")

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from helpers.study import runner
+from helpers.study.cli import runner
 from helpers.study.parameters import _DATA, _MODEL, _TRAIN, ParameterError
 
 PRESETS = runner.PRESETS  # "smoke" is the notebooks' own defaults (no folder)

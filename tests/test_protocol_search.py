@@ -7,7 +7,7 @@ from helpers.core.configs import paper_ratio_search
 from helpers.core.rotations import haar_uniform
 from helpers.search.fps import anchor_coverage_deg
 from helpers.study.parameters import configs_from
-from helpers.study.protocol import density_matched_search
+from helpers.study.protocols.linemod import density_matched_search
 
 
 def test_anchor_coverage_shrinks_with_more_anchors_and_is_zero_when_all_are_anchors():
@@ -35,7 +35,7 @@ def test_density_parameter_builds_the_fast_candidate():
 
 def test_stale_files_of_the_protocols_own_search_are_dropped(tmp_path):
     from helpers.core.configs import GREEDY
-    from helpers.study.protocol import drop_stale_search_files
+    from helpers.study.protocols.linemod import drop_stale_search_files
 
     for name in ("per_query_ours.csv", "per_query_ours_fast.csv", "per_query_hog_greedy.csv",
                  "per_query_ours_greedy.csv", "per_query_ours_short_budget.csv"):

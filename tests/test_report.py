@@ -3,7 +3,7 @@ import json
 import pytest
 
 from helpers.study.report import build_report
-from helpers.study.runner import run
+from helpers.study.cli.runner import run
 
 
 @pytest.mark.slow

@@ -8,7 +8,7 @@ from helpers.evaluation.stats import (HOLDS, REVERSED, VERDICTS, WITHIN_NOISE, W
                                       direction_verdict, equivalence_verdict, paired_difference,
                                       ratio_of_medians_ci, seed_differences, seed_spread, share_ci,
                                       unpaired_difference)
-from helpers.study.variants import claims_table
+from helpers.study.protocols.variants import claims_table
 
 
 def _pq(correct, objs=None, n_obj: int = 4) -> pd.DataFrame:

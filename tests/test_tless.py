@@ -1,4 +1,4 @@
-"""The T-LESS-like set (helpers.data.tless) and its protocol (helpers.study.tless_protocol) on a tiny configuration."""
+"""The T-LESS-like set (helpers.data.tless) and its protocol (helpers.study.protocols.tless) on a tiny configuration."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from helpers.data.gl import render_raw
 from helpers.data.tless import load_tless
 from helpers.evaluation.baselines import HogModel
 from helpers.evaluation.tless_scoring import rotation_errors, vsd_errors
-from helpers.study.tless_protocol import evaluate_tless
+from helpers.study.protocols.tless import evaluate_tless
 
 pytestmark = pytest.mark.gl
 TINY = TlessConfig(n_references=12, n_queries=2)

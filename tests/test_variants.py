@@ -12,7 +12,7 @@ from helpers.core.configs import ModelConfig, TrainConfig, parse_scales
 from helpers.evaluation.paper import COMPONENT_LABELS
 from helpers.evaluation.stats import accuracy_ci
 from helpers.study.pipeline import _train_key
-from helpers.study.variants import Trained, model_source, variant_config, variant_table, with_seeds
+from helpers.study.protocols.variants import Trained, model_source, variant_config, variant_table, with_seeds
 
 
 def _base() -> TrainConfig:

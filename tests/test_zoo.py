@@ -222,13 +222,13 @@ def test_ablation_notebook_evaluates_zoo_variants_and_records_them(tmp_path):
 
 def test_long_preset_trains_the_zoo_recipes_runs():
     """The long preset's notebook parameters give the zoo recipes' configs, so notebook 02/03 of
-    the long preset and `python -m helpers.study.zoo train` share (and resume) the same cache runs."""
+    the long preset and `python -m helpers.study.cli.zoo train` share (and resume) the same cache runs."""
     from dataclasses import asdict
 
     from helpers.study.parameters import configs_from
     from helpers.study.pipeline import _train_key
-    from helpers.study.runner import preset_parameters
-    from helpers.study.variants import variant_config
+    from helpers.study.cli.runner import preset_parameters
+    from helpers.study.protocols.variants import variant_config
 
     P = preset_parameters("long", "02_train")
     c = configs_from(P)

@@ -6,7 +6,7 @@ Run by ``scripts/gpu_zoo/device.sh`` on that machine (after ``scripts/gpu_zoo/bu
 
 1. renders every view the recipes need once, with many processes (a subprocess: this process never
    holds a GL context, so the trainers it starts are never forked from one);
-2. starts one ``python -m helpers.study.zoo train NAME --publish`` per recipe (one GPU, shared);
+2. starts one ``python -m helpers.study.cli.zoo train NAME --publish`` per recipe (one GPU, shared);
 3. at ``--deadline`` seconds after ``$GPU_ZOO_T0`` (the script's start otherwise) stops those still
    running (SIGTERM, then SIGKILL): their epoch checkpoints stay;
 4. packs into ``$OUT``: ``NAME.zoo.tgz`` (models/NAME.* and its zoo.yaml entry) for a published model,

@@ -103,7 +103,7 @@ def export_tless_like(tset: TlessSet, root: str | os.PathLike, cache: str | os.P
 
 
 def tless_like_results(tset: TlessSet, res: dict, ids: dict[str, int] | None = None) -> list[dict]:
-    """BOP result rows of one method's retrieval on the set (:func:`helpers.study.tless_protocol.evaluate_tless`):
+    """BOP result rows of one method's retrieval on the set (:func:`helpers.study.protocols.tless.evaluate_tless`):
     the estimated rotation with the true translation (the paper's rotation-only protocol), the retrieval score
     unknown (1.0), the predicted part as obj_id."""
     ids = ids or {n: i + 1 for i, n in enumerate(tset.names)}

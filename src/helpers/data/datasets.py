@@ -207,7 +207,7 @@ def _load_complete(d: Path, spec: ViewSetSpec, manifest: Manifest, mmap: bool) -
     if images.shape != (spec.n, spec.side(), spec.side(), 3):
         raise DamagedEntry(f"{d}/images.npy: expected shape {(spec.n, spec.side(), spec.side(), 3)}, "
                            f"got {images.shape}; delete {d} to re-render")
-    touch(d / "meta.json")  # its modification time is the set's last use (python -m helpers.study.cache list)
+    touch(d / "meta.json")  # its modification time is the set's last use (python -m helpers.study.cli.cache list)
     return ObjectViews(spec.object, images, rots, masks, spec.kind, manifest.object(spec.object).symmetry_group(), meta)
 
 

@@ -161,7 +161,7 @@ class FeatureCache:
 
     def load(self, model_key: str, refset_key: str, mark_used: bool = True) -> np.memmap | None:
         """The finished cached array (N, C, L) float16 read-only, or None if not built.
-        ``mark_used`` records this as the entry's last use (``python -m helpers.study.cache`` reads it)."""
+        ``mark_used`` records this as the entry's last use (``python -m helpers.study.cli.cache`` reads it)."""
         final, side, _ = self.paths(model_key, refset_key)
         if not final.is_file():
             return None

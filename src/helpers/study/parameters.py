@@ -292,7 +292,7 @@ def configs_from(P: dict[str, Any]) -> StudyConfigs:
     search = None
     if has(("k_ac", "fps_k", "n_references")):
         # "density": fast search at these settings is the candidate; notebook 03 keeps it or takes greedy by
-        # the anchors' coverage of the references (helpers.study.protocol.density_matched_search)
+        # the anchors' coverage of the references (helpers.study.protocols.linemod.density_matched_search)
         method = P.get("eval_method", "fast")
         search = paper_ratio_search(P["n_references"], P["k_ac"], P["fps_k"],
                                     method="fast" if method == "density" else method, group=P.get("group", 1024))

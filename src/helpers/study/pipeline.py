@@ -179,7 +179,7 @@ def check_run(run: Path, backfill: bool = True) -> dict:
         raise DamagedEntry(f"{done}: malformed checksums; delete {run} (the next run retrains it)")
     for f in ("best.pt", "last.pt"):
         check_sha256(run / f, sums.get(f, ""), done,
-                     f"remove the run with `python -m helpers.study.cache prune` (or delete {run}); the next run retrains it")
+                     f"remove the run with `python -m helpers.study.cli.cache prune` (or delete {run}); the next run retrains it")
     return info
 
 

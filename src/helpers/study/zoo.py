@@ -273,7 +273,7 @@ def _write_entry(name: str, entry: dict, zoo_dir: Path) -> None:
     with FileLock(str(path) + ".lock", timeout=600):
         zoo = entries(zoo_dir) if path.exists() else {}
         zoo[name] = entry
-        head = "# The model zoo: written by `python -m helpers.study.zoo train NAME --publish` (helpers.study.zoo.publish).\n"
+        head = "# The model zoo: written by `python -m helpers.study.cli.zoo train NAME --publish` (helpers.study.zoo.publish).\n"
         atomic_write_text(path, head + yaml.dump({"models": dict(sorted(zoo.items()))}, Dumper=_PlainDumper,
                                                  sort_keys=False))
 
@@ -380,7 +380,7 @@ def load(name: str, device: str | torch.device = "auto", zoo_dir: Path = ZOO_DIR
     if sha256_file(f) != e["sha256"]:
         raise ValueError(f"zoo: {f} does not match the sha256 recorded in zoo.yaml for {name!r}: damaged "
                          "or replaced; restore it with `git checkout -- models/` or retrain it with "
-                         f"`python -m helpers.study.zoo train {name} --publish`")
+                         f"`python -m helpers.study.cli.zoo train {name} --publish`")
     ck = torch.load(f, map_location="cpu", weights_only=True)
     return _build(ck, resolve_device(device)), e
 
@@ -415,7 +415,7 @@ def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR, steps: int
     raise ValueError(f"models='zoo': no zoo model for split {split} with model {want} and "
                      f"{ {f: getattr(train_cfg, f) for f in _VARIANT_FIELDS} }; the zoo has "
                      f"{ {n: (e['split'], e['train']['model'].get('fusion'), e['seed']) for n, e in zoo.items()} }. "
-                     "Train it (`python -m helpers.study.zoo train NAME --publish`) or use models='train'")
+                     "Train it (`python -m helpers.study.cli.zoo train NAME --publish`) or use models='train'")
 
 
 def model_for(split: int, train_cfg: TrainConfig, data: Any, val_refs: int, models: str = "train",
@@ -458,9 +458,3 @@ def zoo_curve(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR) -> tu
     label = (f"zoo {name} ({e['data']['n_train_queries']} queries/object; val: {e['data']['n_val_queries']} views x "
              f"{e['val_refs_per_object']} refs/object)")
     return label, np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
-
-
-if __name__ == "__main__":  # `python -m helpers.study.zoo ...`: the command line lives in zoo_cli (run, not
-    import runpy           # imported: zoo_cli imports this module)
-
-    runpy.run_module("helpers.study.zoo_cli", run_name="__main__")

@@ -363,7 +363,7 @@ def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
         raise
     except (RuntimeError, EOFError, OSError, ValueError) as e:  # torch's zip reader, a truncated pickle
         raise DamagedEntry(f"{path}: unreadable checkpoint ({str(e).splitlines()[0][:200]}); delete the run "
-                           f"folder {path.parent} (or `python -m helpers.study.cache prune`) and rerun to retrain") from None
+                           f"folder {path.parent} (or `python -m helpers.study.cli.cache prune`) and rerun to retrain") from None
 
 
 def load_model(path: str | Path, device: str | torch.device = "auto") -> tuple[OrientationNet, dict]:

@@ -26,7 +26,7 @@ class Experiment:
         section: its REPORT.md section, or None (it has none).
         check: checks of parameter values only this notebook has, or None.
         headline: the README's headline lines it contributes, as (claim id, label) pairs
-            (:mod:`helpers.study.readme` writes each from ``reports/quick/claims.json``; absent claims are skipped).
+            (:mod:`helpers.study.cli.readme` writes each from ``reports/quick/claims.json``; absent claims are skipped).
     """
 
     notebook: str

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..core.configs import LATER_DEFAULTS
-from ..core.views import ObjectViews
-from ..data.datasets import ViewSetSpec, render_sets
-from ..data.render import query_style
-from ..evaluation.stats import claim, seed_spread
-from .pipeline import StudyData
+from ...core.configs import LATER_DEFAULTS
+from ...core.views import ObjectViews
+from ...data.datasets import ViewSetSpec, render_sets
+from ...data.render import query_style
+from ...evaluation.stats import claim, seed_spread
+from ..pipeline import StudyData
 from .variants import Trained, per_query, seed_accuracies
-from .zoo import named_model
+from ..zoo import named_model
 
 #: The screening views' seed is the data seed plus this (validation +1, test +2, occluded +3 are taken).
 SCREEN_SEED_OFFSET = 5

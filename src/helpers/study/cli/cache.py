@@ -1,4 +1,4 @@
-"""See, check and clean the cache: ``python -m helpers.study.cache list | verify | prune``.
+"""See, check and clean the cache: ``python -m helpers.study.cli.cache list | verify | prune``.
 
 The cache (``$HELPERS_CACHE_DIR``, default ``<repo>/cache``) holds five kinds of entries:
 
@@ -32,13 +32,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..core.fileio import DamagedEntry, read_json
-from ..core.locks import try_entry_lock
-from ..core.paths import cache_dir
-from ..data.datasets import check_set
-from ..search.features import FeatureCache
-from .byo import check_refs
-from .pipeline import check_run
+from ...core.fileio import DamagedEntry, read_json
+from ...core.locks import try_entry_lock
+from ...core.paths import cache_dir
+from ...data.datasets import check_set
+from ...search.features import FeatureCache
+from ..byo import check_refs
+from ..pipeline import check_run
 
 KINDS = ("render", "features", "run", "byo", "kernel")
 TEMP_SUFFIXES = (".tmp",)  # a feature file's ".partial" is its resumable progress, not a temporary
@@ -178,7 +178,7 @@ def _fmt_row(e: Entry, root: Path) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m helpers.study.cache", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m helpers.study.cli.cache", description=__doc__.split("\n\n")[0])
     ap.add_argument("--cache", default=None, help="cache root (default: $HELPERS_CACHE_DIR or <repo>/cache)")
     sub = ap.add_subparsers(dest="cmd", required=True)
     ls = sub.add_parser("list", help="entries, kinds, sizes, last use, what made them")

@@ -16,18 +16,18 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from ..core.configs import GREEDY
-from ..core.device import resolve_device
-from ..core.paths import cache_dir
-from ..data.tless import TlessSet
-from ..evaluation import paper
-from ..evaluation.metrics import summarise_queries
-from ..evaluation.stats import accuracy_ci
-from ..evaluation.tless_scoring import VSD_THRESHOLD, vsd_errors
-from ..search.bank import ReferenceBank
-from ..search.features import FeatureCache, encode_batch, model_fingerprint
-from .figures import _plt, save
-from .pipeline import evaluate
+from ...core.configs import GREEDY
+from ...core.device import resolve_device
+from ...core.paths import cache_dir
+from ...data.tless import TlessSet
+from ...evaluation import paper
+from ...evaluation.metrics import summarise_queries
+from ...evaluation.stats import accuracy_ci
+from ...evaluation.tless_scoring import VSD_THRESHOLD, vsd_errors
+from ...search.bank import ReferenceBank
+from ...search.features import FeatureCache, encode_batch, model_fingerprint
+from ..figures import _plt, save
+from ..pipeline import evaluate
 
 
 def tless_bank(model: Any, tset: TlessSet, device: str = "auto", cache: str | os.PathLike | None = None,

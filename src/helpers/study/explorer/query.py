@@ -6,7 +6,7 @@ which references score best (object, score, rotation error, verdict), how the fu
 the locations of the query against its best reference at each scale, and how the score of
 the query against every reference of its TRUE object varies with the geodesic distance
 between that reference's rotation and the true one (a well-trained model peaks at 0 deg).
-:func:`query_figure` draws all of it; the widgets of :mod:`helpers.study.explore_ui` call these.
+:func:`query_figure` draws all of it; the widgets of :mod:`helpers.study.explorer.panels` call these.
 """
 
 from __future__ import annotations
@@ -20,15 +20,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.device import resolve_device
-from ..core.paths import is_checkpoint_choice, repo_path
-from ..core.rotations import symmetric_geodesic_deg
-from ..search.bank import ReferenceBank
-from ..search.retrieval import model_scorer
-from ..training.train import load_model
-from .figures import _plt, save
-from .pipeline import StudyData, encode_queries, reference_bank
-from .zoo import ZOO_DIR, entries, load
+from ...core.device import resolve_device
+from ...core.paths import is_checkpoint_choice, repo_path
+from ...core.rotations import symmetric_geodesic_deg
+from ...search.bank import ReferenceBank
+from ...search.retrieval import model_scorer
+from ...training.train import load_model
+from ..figures import _plt, save
+from ..pipeline import StudyData, encode_queries, reference_bank
+from ..zoo import ZOO_DIR, entries, load
 
 #: Rotation accuracy threshold of the study (degrees), as in every report.
 THRESHOLD_DEG = 30.0

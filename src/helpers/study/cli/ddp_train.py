@@ -1,7 +1,7 @@
 """Train one split's main model on N processes (GPUs or CPU) with DistributedDataParallel.
 
-    torchrun --nproc_per_node=N -m helpers.study.ddp_train --preset paper --split 1
-    (or: python -m torch.distributed.run --nproc_per_node=N -m helpers.study.ddp_train ...)
+    torchrun --nproc_per_node=N -m helpers.study.cli.ddp_train --preset paper --split 1
+    (or: python -m torch.distributed.run --nproc_per_node=N -m helpers.study.cli.ddp_train ...)
 
 Uses the training parameters of ``presets/<preset>/02_train.yaml`` (checked like the
 runner checks them). Backend nccl when CUDA is present (process k on GPU k of its node),
@@ -20,13 +20,13 @@ import os
 import sys
 from dataclasses import replace
 
-from .parameters import ParameterError, check_values, configs_from
-from .pipeline import prepare_data, train_or_load
+from ..parameters import ParameterError, check_values, configs_from
+from ..pipeline import prepare_data, train_or_load
 from .runner import preset_parameters
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="torchrun --nproc_per_node=N -m helpers.study.ddp_train",
+    ap = argparse.ArgumentParser(prog="torchrun --nproc_per_node=N -m helpers.study.cli.ddp_train",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--preset", default="paper", help="preset whose 02_train parameters are used")
     ap.add_argument("--split", type=int, default=None, help="split to train (default: the preset's)")

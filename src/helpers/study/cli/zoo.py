@@ -1,19 +1,19 @@
-"""The zoo's command line: ``python -m helpers.study.zoo`` (or ``python -m helpers.study.zoo_cli``)
+"""The zoo's command line: ``python -m helpers.study.cli.zoo``
 ``train NAME [NAME ...] [--publish]`` | ``snapshot NAME`` | ``list`` | ``verify`` | ``speeds``."""
 
 from __future__ import annotations
 
 from dataclasses import replace
 
-from .zoo import RECIPES, progress, publish, recipe, refresh_speeds, snapshot, train_recipe, verify
+from ..zoo import RECIPES, progress, publish, recipe, refresh_speeds, snapshot, train_recipe, verify
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m helpers.study.zoo train NAME [NAME ...] [--publish]`` | ``snapshot NAME`` | ``list`` | ``verify``
+    """``python -m helpers.study.cli.zoo train NAME [NAME ...] [--publish]`` | ``snapshot NAME`` | ``list`` | ``verify``
     | ``speeds``."""
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m helpers.study.zoo", description=main.__doc__)
+    ap = argparse.ArgumentParser(prog="python -m helpers.study.cli.zoo", description=main.__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
     t = sub.add_parser("train", help="train (or resume) zoo recipes; --publish writes models/<name>.*")
     t.add_argument("names", nargs="+")

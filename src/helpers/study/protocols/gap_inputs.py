@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..evaluation.search_results import FAST_ROW, GREEDY_ROW, SearchComparison, variant_row
+from ...evaluation.search_results import FAST_ROW, GREEDY_ROW, SearchComparison, variant_row
 
 #: Parameters notebooks 06 and 07 must share for their answers to be steps of one account.
 SHARED = ("split", "models", "zoo_steps", "image_size", "render_size", "n_references", "n_test_queries",

@@ -19,14 +19,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..core.configs import GREEDY, PAPER_K_AC, PAPER_N_REFS, SearchConfig
-from ..core.rotations import haar_uniform
-from ..evaluation import paper
-from ..evaluation.baselines import HogModel
-from ..evaluation.metrics import Record, per_query_table, summarise_queries
-from ..search.fps import anchor_coverage_deg
-from ..search.retrieval import search_all
-from .pipeline import StudyData, encode_queries, evaluate, first, reference_bank
+from ...core.configs import GREEDY, PAPER_K_AC, PAPER_N_REFS, SearchConfig
+from ...core.rotations import haar_uniform
+from ...evaluation import paper
+from ...evaluation.baselines import HogModel
+from ...evaluation.metrics import Record, per_query_table, summarise_queries
+from ...search.fps import anchor_coverage_deg
+from ...search.retrieval import search_all
+from ..pipeline import StudyData, encode_queries, evaluate, first, reference_bank
 
 
 PARTS = ("unseen", "seen", "occluded")

@@ -2,9 +2,9 @@
 
 * :func:`query_panel`: model, object and query controls; below them the one-line verdict
   (an HTML widget, class ``explore-summary``) and the figure of
-  :func:`helpers.study.explore.query_figure` (an Image widget, class ``explore-figure``).
+  :func:`helpers.study.explorer.query.query_figure` (an Image widget, class ``explore-figure``).
 * :func:`byo_panel`: upload a mesh and a crop, press the button, get the rotation
-  (:func:`byo_answer`, the same call as ``python -m helpers.study.byo``) and its overlay.
+  (:func:`byo_answer`, the same call as ``python -m helpers.study.cli.byo``) and its overlay.
 
 CSS classes name the parts a browser test reads (``tests/test_browser.py``): it compares
 what the page shows, not the kernel's state. ipywidgets is imported inside the panel
@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from .byo import ByoResult, estimate_rotation, overlay_figure
-from .explore import Explorer, figure_png, inspect_query
+from ..byo import ByoResult, estimate_rotation, overlay_figure
+from .query import Explorer, figure_png, inspect_query
 
 
 def query_panel(make_explorer: Callable[[str], Explorer], models: list[str], objects: list[str],

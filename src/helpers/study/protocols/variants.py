@@ -39,15 +39,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..core.configs import GREEDY, parse_scales
-from ..core.fileio import atomic_write_json, atomic_write_text, stable_hash, write_table
-from ..core.paths import cache_dir
-from ..core.views import ObjectViews
-from ..evaluation.metrics import summarise_queries
-from ..evaluation.stats import accuracy_ci, seed_mean
-from ..search.features import model_fingerprint
-from .pipeline import StudyData, evaluate, reference_bank
-from .zoo import model_for
+from ...core.configs import GREEDY, parse_scales
+from ...core.fileio import atomic_write_json, atomic_write_text, stable_hash, write_table
+from ...core.paths import cache_dir
+from ...core.views import ObjectViews
+from ...evaluation.metrics import summarise_queries
+from ...evaluation.stats import accuracy_ci, seed_mean
+from ...search.features import model_fingerprint
+from ..pipeline import StudyData, evaluate, reference_bank
+from ..zoo import model_for
 
 NOISE_NOTE = ("claims compare object-averaged Rota. Acc. of two variants on the same queries; ci is a paired "
               "bootstrap 95 % interval (queries resampled within objects) of the difference of accuracies averaged "
@@ -115,7 +115,7 @@ def train_variants(configs: dict[str, Any], data: StudyData, split: int, val_ref
         if len({s for v in budgets.values() for s in v}) > 1:
             raise ValueError(f"models='zoo': the variants' zoo models were trained for different numbers of steps "
                              f"{budgets}; an ablation compares equal budgets, so train the others to the same "
-                             "budget (`python -m helpers.study.zoo train NAME --publish`) or use models='train'")
+                             "budget (`python -m helpers.study.cli.zoo train NAME --publish`) or use models='train'")
     return out
 
 

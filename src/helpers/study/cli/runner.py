@@ -1,7 +1,7 @@
 """Batch runner: execute the study's notebooks with a named preset via papermill.
 
-    python -m helpers.study.runner quick            # all notebooks, quick preset
-    python -m helpers.study.runner smoke --only 01_render 02_train
+    python -m helpers.study.cli.runner quick            # all notebooks, quick preset
+    python -m helpers.study.cli.runner smoke --only 01_render 02_train
 
 For each notebook it loads ``presets/<preset>/<notebook>.yaml`` (absent = the
 notebook's own defaults, which are the smoke preset), refuses unknown or
@@ -25,12 +25,12 @@ from pathlib import Path
 
 import yaml
 
-from ..core.fileio import atomic_write_json, atomic_write_text, stable_hash
-from ..core.locks import entry_lock
-from ..core.paths import REPO_ROOT, portable_obj
-from .parameters import NOTEBOOK_DIR, ParameterError, check_mapping, check_values, declared_parameters
-from .provenance import git_revision
-from .report import build_report
+from ...core.fileio import atomic_write_json, atomic_write_text, stable_hash
+from ...core.locks import entry_lock
+from ...core.paths import REPO_ROOT, portable_obj
+from ..parameters import NOTEBOOK_DIR, ParameterError, check_mapping, check_values, declared_parameters
+from ..provenance import git_revision
+from ..report import build_report
 
 PRESET_DIR = REPO_ROOT / "presets"
 PRESETS = ("smoke", "quick", "long", "paper")  # "standard" (180-step models) retired once the quick preset read the zoo
@@ -273,7 +273,7 @@ def export_html(nb_path: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m helpers.study.runner", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m helpers.study.cli.runner", description=__doc__.split("\n\n")[0])
     ap.add_argument("preset", choices=PRESETS)
     ap.add_argument("--only", nargs="*", help="notebook names to run (default: all)")
     ap.add_argument("--no-html", action="store_true")

@@ -1,6 +1,6 @@
 """The README's headline block, written from a report's ``claims.json`` so its numbers cannot go stale.
 
-``python -m helpers.study.readme [--check]`` rewrites (or checks) the block between the markers in README.md from
+``python -m helpers.study.cli.readme [--check]`` rewrites (or checks) the block between the markers in README.md from
 ``reports/quick/claims.json``; ``tests/test_experiments.py`` fails when they differ. Each experiment names the
 claims it puts in the headline (:attr:`helpers.study.experiments.base.Experiment.headline`).
 """
@@ -12,13 +12,13 @@ import json
 import sys
 from pathlib import Path
 
-from ..core.fileio import atomic_write_text
-from ..core.paths import REPO_ROOT
-from .experiments import REGISTRY
+from ...core.fileio import atomic_write_text
+from ...core.paths import REPO_ROOT
+from ..experiments import REGISTRY
 
 README = REPO_ROOT / "README.md"
 CLAIMS = REPO_ROOT / "reports" / "quick" / "claims.json"
-BEGIN = "<!-- headline: written by `python -m helpers.study.readme` from reports/quick/claims.json; do not edit -->"
+BEGIN = "<!-- headline: written by `python -m helpers.study.cli.readme` from reports/quick/claims.json; do not edit -->"
 END = "<!-- end of headline -->"
 #: Claims whose values are fractions or ratios, not percentages or points.
 _UNITS = {"fast_speedup": "x", "fast_greedy_agreement": ""}
@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.check:
         same = current_block(README.read_text()) == block(json.loads(CLAIMS.read_text()))
         print("README headline matches reports/quick/claims.json" if same else
-              "README headline differs from reports/quick/claims.json: run `python -m helpers.study.readme`")
+              "README headline differs from reports/quick/claims.json: run `python -m helpers.study.cli.readme`")
         return 0 if same else 1
     print("README headline rewritten" if update() else "README headline already current")
     return 0
