@@ -23,7 +23,9 @@ measurement module:
 * ``bench_fusion.py``: GEMM, fusion kernel, FLOP counts (``gemm``, ``fusion``);
 * ``bench_retrieval.py``: synthetic bank and retrieval, real-set agreement,
   cache bytes (``retrieval_synthetic``, ``retrieval_real``,
-  ``cache_bytes_13x10000``).
+  ``cache_bytes_13x10000``);
+* ``bench_precision.py``: bf16 against float32 training, speed and fidelity
+  (``precision``; opt-in, run only when named in ``--sections``).
 
 Only the standard library and numpy are imported at module level (here and in
 those modules): rendering workers are *spawned*, and a spawned worker
@@ -41,8 +43,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-# The section modules are siblings of this file; it is also loaded by path (tests) or
-# imported from benchmarks/ (hotpath_ab.py), so put its folder on the path either way.
+# The section modules are siblings of this file; it is also loaded by path (tests), so put its folder on the
+# path either way.
 _HERE = str(Path(__file__).resolve().parent)
 if _HERE not in sys.path:
     sys.path.insert(0, _HERE)
@@ -67,11 +69,15 @@ from bench_retrieval import (  # noqa: E402,F401
     write_synthetic_bank,
 )
 from bench_config import FULL, QUICK, BenchConfig  # noqa: E402,F401
+from bench_precision import bench_precision  # noqa: E402
 from bench_train import _model, bench_encode, bench_train, bench_train_ab, monotone_readout  # noqa: E402,F401
 from timing import PeakSampler, Probe, background_load, log, measure, memory_snapshot, source_hashes  # noqa: E402,F401
 
-# Names above that this file does not use are re-exported, so ``import bench`` offers what it
-# did before the split (benchmarks/hotpath_ab.py uses _model, _unit_features, _smooth_*, Probe).
+# Names above that this file does not use are re-exported, so ``import bench`` offers every section's helpers.
+
+#: Sections of a plain run, in order; OPT_IN ones run only when named (``--sections``).
+DEFAULT_SECTIONS = ("render", "train", "train_ab", "encode", "fusion", "retrieval_synthetic", "retrieval_real")
+OPT_IN_SECTIONS = ("precision",)
 
 REPO = Path(__file__).resolve().parents[1]
 SCHEMA_VERSION = 1
@@ -177,8 +183,11 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
 
     gate = timing.configure(cfg.quiet_threshold, cfg.wait_quiet_s, cfg.retry_contended)
     torch.set_num_threads(cfg.threads)
-    all_sections = ("render", "train", "train_ab", "encode", "fusion", "retrieval_synthetic", "retrieval_real")
-    sections = sections or all_sections
+    sections = sections or DEFAULT_SECTIONS
+    unknown = sorted(set(sections) - set(DEFAULT_SECTIONS) - set(OPT_IN_SECTIONS))
+    if unknown:
+        raise ValueError(f"--sections: unknown {unknown}; expected a subset of "
+                         f"{', '.join(DEFAULT_SECTIONS + OPT_IN_SECTIONS)}")
     t_start = time.perf_counter()
     res: dict[str, Any] = {
         "schema_version": SCHEMA_VERSION, "mode": cfg.mode, "config": cfg.to_dict(),
@@ -218,6 +227,7 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
         section("fusion", lambda: {str(s): bench_fusion(cfg, s, res["gemm"]["gflops_per_s"]) for s in cfg.sizes})
     section("retrieval_synthetic", lambda: bench_retrieval_synthetic(cfg, tmp_root))
     section("retrieval_real", lambda: bench_real_agreement(cfg, checkpoint, tmp_root))
+    section("precision", lambda: bench_precision(cfg))
 
     res["cache_bytes_13x10000"] = cache_bytes(sizes=(64, 128))
     written = res.get("retrieval_synthetic", {}).get("write")
@@ -303,6 +313,11 @@ def summarise(res: dict) -> dict:
             s["real_rot_acc_c2f_pct"] = rr["c2f"]["rot_acc_pct"]
             s["real_agreement_c2f_greedy_same_reference"] = rr["agreement_c2f_greedy_same_reference"]
             s["real_agreement_c2f_fast_same_reference"] = rr["agreement_c2f_fast_same_reference"]
+    pr = res.get("precision")
+    if pr:
+        s["precision_ratio_bf16_over_fp32"] = pr["speed"]["ratio_bf16_over_fp32"]
+        s["precision_max_epoch_loss_diff"] = pr["fidelity"]["max_epoch_loss_diff"]
+        s["precision_within_tolerance"] = pr["fidelity"]["within_tolerance"]
     for sz, v in res.get("cache_bytes_13x10000", {}).items():
         s[f"cache_bytes_13x10000_{sz}px"] = v["bytes"]
     s["peak_maxrss_bytes"] = res["memory"]["peak"]["maxrss_bytes"]
@@ -319,14 +334,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--wait-quiet", type=float, default=None,
                     help="total seconds the run may wait for other processes to leave the CPUs "
                          "(default 0 = never wait; contended repeats are still flagged and retried)")
-    ap.add_argument("--sections", default=None, help="comma-separated subset of sections to run")
+    ap.add_argument("--sections", default=None,
+                    help=f"comma-separated sections to run (default: {','.join(DEFAULT_SECTIONS)}; opt-in: "
+                         f"{','.join(OPT_IN_SECTIONS)})")
     args = ap.parse_args(argv)
     cfg = QUICK if args.quick else FULL
     if args.wait_quiet is not None:
         cfg = BenchConfig(**{**cfg.to_dict(), "wait_quiet_s": args.wait_quiet})
     out = args.out or REPO / "benchmarks" / "results" / ("bench_quick.json" if args.quick else "bench.json")
     sections = tuple(args.sections.split(",")) if args.sections else None
-    res = run(cfg, out, args.checkpoint, args.tmp, sections)
+    try:
+        res = run(cfg, out, args.checkpoint, args.tmp, sections)
+    except ValueError as e:
+        ap.error(str(e))
     log(f"wrote {out} in {res['total_seconds']:.0f} s")
     for k, v in res["summary"].items():
         print(f"{k:48s} {v:.4g}" if isinstance(v, float) else f"{k:48s} {v}")

@@ -65,6 +65,10 @@ class BenchConfig:
     real_queries: int = 3
     real_objects: int = 13
     real_workers: int = 2
+    # 6. bf16 against float32 training (section ``precision``, opt-in)
+    precision_repeats: int = 20  # timed training steps per precision
+    precision_steps: int = 300  # optimiser steps of each of the two fidelity trainings
+    precision_tiny_data: bool = False  # a few renders per object instead of the quick data (tests)
     # contention control
     quiet_threshold: float = 0.2  # max fraction of all CPUs busy with OTHER processes
     retry_contended: int = 2  # re-run a contended repeat up to this many times
@@ -82,4 +86,4 @@ QUICK = BenchConfig(mode="quick", render_objects=2, render_refs_per_object=64, r
                     encode_repeats_large=2, fusion_refs_q1=1024, fusion_refs_qmany=128, fusion_repeats=2,
                     gemm_repeats=3, retr_refs=(1000, 2000), retr_fast_queries=5, retr_greedy_queries=2,
                     retr_batch_queries=8, retr_query_batch=4,
-                    real_refs=128, real_queries=1)
+                    real_refs=128, real_queries=1, precision_repeats=10, precision_steps=100)

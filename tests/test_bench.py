@@ -167,3 +167,22 @@ def test_benchmarks_have_no_import_circle():
 
     circles = sorted(m for m in graph if reaches(m, m, {m}))
     assert not circles, f"benchmark modules in an import circle: {circles}"
+
+
+@pytest.mark.gl
+def test_the_opt_in_precision_section_runs_alone_and_unknown_sections_are_refused(tmp_path, monkeypatch):
+    """``--sections precision`` runs bf16 against float32 (speed, two tiny trainings) and nothing else."""
+    monkeypatch.setenv("HELPERS_CACHE_DIR", str(tmp_path / "cache"))
+    bench = _load_bench()
+    cfg = bench.BenchConfig(mode="tiny", train_ab_batch=2, precision_repeats=1, precision_steps=2,
+                            precision_tiny_data=True, retry_contended=0)
+    out = tmp_path / "p.json"
+    res = bench.run(cfg, out, tmp_root=str(tmp_path), sections=("precision",))
+    assert not {"render", "train", "fusion", "retrieval_synthetic"} & set(res)
+    sp, fi = res["precision"]["speed"], res["precision"]["fidelity"]
+    _positive(sp["images_per_s"], "fp32", "bf16")
+    assert fi["steps"] == 2 and set(fi["runs"]) == {"fp32", "bf16"}
+    assert res["precision"]["auto_picks"] in ("fp32", "bf16")
+    assert isinstance(res["summary"]["precision_within_tolerance"], bool)
+    with pytest.raises(ValueError, match="unknown"):
+        bench.run(cfg, tmp_path / "x.json", sections=("precison",))

@@ -101,7 +101,7 @@ def _fuse_block(fusion: "Fusion", w: torch.Tensor, b: torch.Tensor,
     prod = r * q                                                  # (Rb, C, X) local similarity
     logits = torch.bmm(w.expand(prod.shape[0], -1, -1), prod) + b[:, None]                # (Rb, K, X)
     a = torch.softmax(fusion.log_weights(logits), dim=-1)        # (Rb, X)
-    return (prod * a.unsqueeze(1)).sum(-1)  # thin bmm is slow on CPU (benchmarks/hotpath_ab.py)
+    return (prod * a.unsqueeze(1)).sum(-1)  # thin bmm is slow on CPU (benchmarks/README.md, Hot-path history)
 
 
 def _weighted_block(a: torch.Tensor, q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:

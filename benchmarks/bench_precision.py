@@ -1,30 +1,27 @@
-"""bf16 autocast (B) against float32 (A) for training, in one run on one machine.
+"""Section ``precision`` (opt-in: ``bench.py --sections precision``): bf16 autocast (B) against float32 (A) for
+training, in one run on one machine.
 
 1. Speed: the real training step (``helpers.training.train.train_step``: encode 3B images, B x 2B fusion
    scores, weighted infoNCE, backward, Adam) at 64 px, A and B interleaved, median of
-   ``--repeats`` timings each; images/s and the ratio B/A.
+   ``precision_repeats`` timings each; images/s and the ratio B/A.
 2. Fidelity: split #1's model trained twice on the quick benchmark's data (same seed, same
-   batches), once per precision, ``--steps`` optimiser steps with the quick recipe (cosine),
+   batches), once per precision, ``precision_steps`` optimiser steps with the quick recipe (cosine),
    validated on held-out views of SEEN objects (256 references per object). The verdict uses
    tolerances fixed before the run: per-epoch training loss within ``LOSS_TOL`` and final
    validation Class./Rota. Acc. within ``VAL_TOL_POINTS`` (about 1.5 binomial standard errors of
    the 216 validation queries at 50 %).
 
-Writes ``benchmarks/results/precision_ab.json``. The CPU's bf16 support is detected and recorded;
-on a CPU without native bf16 the ratio shows the slowdown that makes ``precision="auto"`` pick fp32.
-
-    .venv/bin/python benchmarks/precision_ab.py                 # about 15 min on 2 cores with native bf16
-    .venv/bin/python benchmarks/precision_ab.py --steps 4 --repeats 2 --tiny --out /tmp/p.json   # smoke
+The CPU's bf16 support is detected and recorded; on a CPU without native bf16 the ratio shows the slowdown that
+makes ``precision="auto"`` pick fp32. About 15 min on 2 cores with native bf16 (``FULL``). Heavy imports inside
+the functions (see ``bench.py`` on spawned workers).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
-import sys
 import time
-from pathlib import Path
+
+from bench_config import BenchConfig
 
 LOSS_TOL = 0.10
 VAL_TOL_POINTS = 5.0
@@ -100,33 +97,13 @@ def fidelity(steps: int, tiny: bool) -> dict:
                                                                    for v in val_diff.values()))}
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=300, help="optimiser steps of each fidelity run")
-    ap.add_argument("--repeats", type=int, default=20, help="timed steps per precision")
-    ap.add_argument("--tiny", action="store_true", help="tiny data (smoke test of this script)")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "precision_ab.json"))
-    a = ap.parse_args(argv)
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+def bench_precision(cfg: BenchConfig) -> dict:
+    """Both parts of the A/B with the run's sizes, the CPU's bf16 support and what ``precision="auto"`` picks."""
     import torch
 
     from helpers.core.precision import describe, resolve_precision
-    from helpers.study.provenance import git_revision, package_versions
 
     cpu = torch.device("cpu")
-    out = {"git": git_revision(), "packages": package_versions(("torch", "numpy")), "threads": torch.get_num_threads(),
-           "cpu": describe(cpu), "auto_picks": resolve_precision("auto", cpu),
-           "speed": speed(a.repeats), "fidelity": fidelity(a.steps, a.tiny)}
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    from helpers.core.paths import portable_obj
-
-    Path(a.out).write_text(json.dumps(portable_obj(out), indent=1))
-    s, f = out["speed"], out["fidelity"]
-    print(f"bf16/fp32 images/s {s['ratio_bf16_over_fp32']:.2f} ({s['images_per_s']['bf16']:.1f} vs "
-          f"{s['images_per_s']['fp32']:.1f}); {f['steps']} steps: max loss diff {f['max_epoch_loss_diff']:.3f}, "
-          f"final val diff {f['final_val_diff_points']}, within tolerance: {f['within_tolerance']}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    return {"cpu": describe(cpu), "auto_picks": resolve_precision("auto", cpu),
+            "speed": speed(cfg.precision_repeats, batch=cfg.train_ab_batch),
+            "fidelity": fidelity(cfg.precision_steps, cfg.precision_tiny_data)}
