@@ -23,3 +23,24 @@ def test_reference_count_axes_label_each_count_once(tmp_path, monkeypatch):
     assert [t.get_text() for t in ax.get_xticklabels()] == ["128", "256", "512", "1,024", "2,048"]
     assert not [t for t in ax.get_xticklabels(minor=True) if t.get_text()]
     assert not [t for t in ax2.get_yticklabels(minor=True) if t.get_text()]  # no "3x10^1 4x10^1 ..." run-together
+
+
+def test_table1_intervals_hold_the_table_values_and_are_drawn(tmp_path):
+    """Table 1's error bars come from the per-query table: each interval holds its bar (the committed quick run),
+    and both Table 1 figures are written."""
+    import pandas as pd
+
+    from helpers.core.paths import REPO_ROOT
+    from helpers.study.figures import bar_chart, methods_figure, table1_intervals
+
+    d = REPO_ROOT / "reports" / "quick" / "03_evaluate"
+    t1, pq = pd.read_csv(d / "table1_splits.csv"), pd.read_csv(d / "per_query_ours.csv")
+    ci = table1_intervals(t1, pq)
+    assert list(ci["split"]) == list(t1["split"])
+    for col in ("unseen rot_acc", "seen rot_acc", "occluded unseen rot_acc"):
+        lo, hi, v = ci[f"{col} lo"], ci[f"{col} hi"], t1[col]
+        assert ((lo <= v + 1e-9) & (v <= hi + 1e-9) & (hi - lo > 0)).all(), (col, ci)
+    assert bar_chart(t1, tmp_path / "t1.png", pq).stat().st_size > 0
+    hog = pd.read_csv(d / "per_query_hog.csv")
+    by_method = {("Ours", "greedy"): pq[pq["part"] == "unseen"], ("HOG", "greedy"): hog}
+    assert methods_figure(by_method, tmp_path / "m.png").stat().st_size > 0

@@ -14,18 +14,31 @@ import pandas as pd
 from ..core.device import resolve_device
 from ..core.fileio import atomic_write_bytes
 from ..core.views import ObjectViews
+from ..evaluation.stats import accuracy_ci
 from ..search.features import encode_views
 
 if TYPE_CHECKING:  # annotations only: figures must not import the study layer
     from .pipeline import StudyData
 
 
+#: One style for every figure of the study: the colour of each method (ours, the baselines, the paper's numbers,
+#: which are hatched grey bars), and the text sizes (points) that :func:`_plt` installs.
+COLOURS = {"ours": "tab:blue", "ours seen": "#9ecae1", "ours occluded": "#08519c", "hog": "tab:orange",
+           "global": "tab:purple", "paper": "lightgrey", "up": "tab:green", "down": "tab:red"}
+PAPER_BAR = {"color": COLOURS["paper"], "edgecolor": "k", "hatch": "//"}
+TEXT_PT = {"font.size": 8, "axes.titlesize": 9, "axes.labelsize": 8, "xtick.labelsize": 8, "ytick.labelsize": 8,
+           "legend.fontsize": 7, "legend.frameon": False}
+
+
 def _plt():
+    """pyplot on the Agg backend with the study's text sizes (:data:`TEXT_PT`); chosen at call time, so importing
+    this module touches no matplotlib state."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    plt.rcParams.update(TEXT_PT)
     return plt
 
 
@@ -81,36 +94,92 @@ def bars(df: pd.DataFrame, label_col: str, value_col: str, path: Path, title: st
     if ci_cols:
         lo, hi = (pd.to_numeric(df[c], errors="coerce").to_numpy() for c in ci_cols)
         err = np.vstack([vals - lo, hi - vals])
-    ax.bar(x - (w / 2 if paper_col else 0), vals, w, yerr=err, capsize=3,
+    ax.bar(x - (w / 2 if paper_col else 0), vals, w, yerr=err, capsize=3, color=COLOURS["ours"],
            label="ours" + (" (95 % interval over queries)" if ci_cols else ""))
     if paper_col:
         pv = pd.to_numeric(df[paper_col], errors="coerce")
-        ax.bar(x + w / 2, pv.fillna(0), w, label="paper (LineMOD)", color="lightgrey", edgecolor="k", hatch="//")
+        ax.bar(x + w / 2, pv.fillna(0), w, label="paper (LineMOD)", **PAPER_BAR)
     if paper_col or ci_cols:
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2, frameon=False)
-    ax.set_xticks(x, df[label_col], rotation=20, fontsize=8)
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2)
+    ax.set_xticks(x, df[label_col], rotation=20)
     ax.set_ylabel(value_col)
-    ax.set_title(title, fontsize=9)
+    ax.set_title(title)
     return save(fig, path)
 
 
-def bar_chart(t1: pd.DataFrame, path: Path) -> Path:
-    """Ours (unseen, seen, occluded) per split beside the paper's unseen LineMOD numbers."""
+#: Table 1's bars: (column of the table, part of the per-query table, legend label, colour).
+TABLE1_BARS = (("unseen rot_acc", "unseen", "ours unseen", COLOURS["ours"]),
+               ("seen rot_acc", "seen", "ours seen", COLOURS["ours seen"]),
+               ("occluded unseen rot_acc", "occluded", "ours occluded unseen", COLOURS["ours occluded"]))
+
+
+def table1_intervals(t1: pd.DataFrame, per_query: pd.DataFrame) -> pd.DataFrame:
+    """95 % bootstrap intervals (object-averaged, as every claim's) of Table 1's Rota. Acc. bars: one row per
+    row of ``t1`` (``#1``.. and ``mean``, all splits together), columns ``<column> lo`` / ``<column> hi`` in %.
+    ``per_query``: notebook 03's ``per_query_ours.csv`` (columns split, obj, part, rot_ok)."""
+    rows = []
+    for label in t1["split"]:
+        pq = per_query if label == "mean" else per_query[per_query["split"].astype(str) == str(label).lstrip("#")]
+        row = {"split": label}
+        for col, part, _, _ in TABLE1_BARS:
+            sub = pq[pq["part"] == part]
+            lo, hi = accuracy_ci(sub)[1] if len(sub) else (np.nan, np.nan)
+            row[f"{col} lo"], row[f"{col} hi"] = lo, hi
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def bar_chart(t1: pd.DataFrame, path: Path, per_query: pd.DataFrame | None = None) -> Path:
+    """Ours (unseen, seen, occluded) per split beside the paper's unseen LineMOD numbers; with ``per_query``
+    (notebook 03's per-query table) each of ours carries its 95 % interval (:func:`table1_intervals`)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 3.4))
     x = np.arange(len(t1))
-    cols = [("unseen rot_acc", "ours unseen"), ("seen rot_acc", "ours seen"),
-            ("occluded unseen rot_acc", "ours occluded unseen"), ("paper LineMOD unseen rot_acc", "paper unseen (LineMOD)")]
+    ci = table1_intervals(t1, per_query) if per_query is not None else None
     w = 0.2
-    for i, (c, lab) in enumerate(cols):
-        vals = pd.to_numeric(t1[c], errors="coerce").fillna(0).to_numpy()
-        ax.bar(x + (i - 1.5) * w, vals, w, label=lab, hatch="//" if "paper" in lab else None,
-               color=None if "paper" not in lab else "lightgrey", edgecolor="k" if "paper" in lab else None)
+    for i, (col, _, label, colour) in enumerate(TABLE1_BARS):
+        vals = pd.to_numeric(t1[col], errors="coerce").to_numpy()
+        err = None if ci is None else np.vstack([vals - ci[f"{col} lo"], ci[f"{col} hi"] - vals])
+        ax.bar(x + (i - 1.5) * w, np.nan_to_num(vals), w, yerr=err, capsize=2, label=label, color=colour)
+    paper_vals = pd.to_numeric(t1["paper LineMOD unseen rot_acc"], errors="coerce").fillna(0).to_numpy()
+    ax.bar(x + 1.5 * w, paper_vals, w, label="paper unseen (LineMOD)", **PAPER_BAR)
     ax.set_xticks(x, t1["split"])
     ax.set_ylabel("Rota. Acc. (%)  [err < 30°, class right]")
     ax.set_ylim(0, 100)
-    ax.legend(fontsize=7, ncol=2)
-    ax.set_title("Rotation accuracy per split (ours: rendered benchmark; paper: real LineMOD)", fontsize=9)
+    ax.legend(ncol=2, title="error bars: 95 % interval over queries" if ci is not None else None)
+    ax.set_title("Rotation accuracy per split (ours: rendered benchmark; paper: real LineMOD)")
+    return save(fig, path)
+
+
+def methods_figure(per_query: dict[tuple[str, str], pd.DataFrame], path: Path) -> Path:
+    """Table 1 like with like as bars: unseen Rota. Acc. of each method (colour, :data:`COLOURS`) under each search
+    (group), with its 95 % interval over queries. ``per_query``: (method, search) -> the method's per-query table
+    of unseen queries (columns split, obj, rot_ok), as :func:`helpers.study.protocols.linemod.searches_table`."""
+    plt = _plt()
+    methods = list(dict.fromkeys(m for m, _ in per_query))
+    searches = list(dict.fromkeys(s for _, s in per_query))
+    fig, ax = plt.subplots(figsize=(max(4.5, 1.6 * len(searches) * len(methods) / 2 + 1.5), 3.4))
+    w = 0.8 / len(methods)
+    for i, method in enumerate(methods):
+        x, vals, err = [], [], [[], []]
+        for j, s in enumerate(searches):
+            pq = per_query.get((method, s))
+            if pq is None:
+                continue
+            point, (lo, hi) = accuracy_ci(pq)
+            x.append(j + (i - (len(methods) - 1) / 2) * w)
+            vals.append(point)
+            err[0].append(point - lo)
+            err[1].append(hi - point)
+        splits = sorted({str(v) for pq in (per_query[(m, s)] for m, s in per_query if m == method)
+                         for v in pq["split"]})
+        ax.bar(x, vals, w, yerr=err, capsize=3, color=COLOURS.get(method.lower(), "grey"),
+               label=f"{method} (split{'s' if len(splits) > 1 else ''} #{', #'.join(splits)})")
+    ax.set_xticks(range(len(searches)), [f"{s} search" for s in searches])
+    ax.set_ylabel("unseen Rota. Acc. (%)")
+    ax.set_ylim(0, 100)
+    ax.legend(loc="upper right", title="error bars: 95 % interval over queries")
+    ax.set_title("Table 1 like with like: the same references, queries and search for every method")
     return save(fig, path)
 
 
@@ -209,8 +278,8 @@ def reference_count_figure(df, split: int, path: str | os.PathLike) -> Path:
     ax2.yaxis.set_minor_formatter(NullFormatter())
     ax2.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax2.set_ylabel("queries/s (dashed)")
-    ax.legend(fontsize=7, loc="upper left")
-    ax.set_title(f"Reference count, split #{split} unseen (cf. paper Fig. 7)", fontsize=9)
+    ax.legend(loc="upper left")
+    ax.set_title(f"Reference count, split #{split} unseen (cf. paper Fig. 7)")
     return save(fig, path)
 
 
@@ -221,7 +290,7 @@ def curves_figure(curves: dict, path: str | os.PathLike, title: str) -> Path:
     for label, (x, y) in curves.items():
         ax.plot(x, y, marker="o" if len(x) <= 3 else ".", label=label)  # a short run's few points stay visible
     ax.set(xlabel="optimiser steps", ylabel="validation Rota. Acc. (%)", title=title)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))  # below the axes: covers no curve
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2))  # below the axes: covers no curve
     ax.grid(alpha=0.3)
     return save(fig, path)
 
@@ -235,12 +304,12 @@ def waterfall_figure(table, path: str | os.PathLike, title: str) -> Path:
     level = 0.0
     for i, r in enumerate(table.itertuples()):
         if i == 0:
-            ax.bar(i, r.rot_acc, color="tab:blue")
+            ax.bar(i, r.rot_acc, color=COLOURS["ours"])
             ax.errorbar(i, r.rot_acc, yerr=[[r.rot_acc - r.ci95_lo], [r.ci95_hi - r.rot_acc]], color="k", capsize=3)
         elif r.verdict == "not measured":
             ax.bar(i, r.change_pts, bottom=level, color="white", edgecolor="grey", hatch="//")
         else:
-            ax.bar(i, r.change_pts, bottom=level, color="tab:green" if r.change_pts >= 0 else "tab:red")
+            ax.bar(i, r.change_pts, bottom=level, color=COLOURS["up" if r.change_pts >= 0 else "down"])
             top = level + r.change_pts
             ax.errorbar(i, top, yerr=[[r.change_pts - r.change_lo], [r.change_hi - r.change_pts]], color="k",
                         capsize=3)
@@ -250,7 +319,7 @@ def waterfall_figure(table, path: str | os.PathLike, title: str) -> Path:
     ax.set_xticklabels([textwrap.fill(str(s), 16) for s in table["label"]], fontsize=6)
     ax.set_ylabel("unseen Rota. Acc. (%)")
     ax.set_ylim(0, 100)
-    ax.set_title(title, fontsize=9)
+    ax.set_title(title)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     return save(fig, path)

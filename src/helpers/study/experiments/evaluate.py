@@ -31,6 +31,8 @@ def section(d: Path, claims: dict[str, dict]) -> list[str]:
     out += claim_line(claims, "ours_minus_hog", "ours beats HOG (ours minus HOG, the study's search for both, paired)")
     out += claim_line(claims, "ours_minus_global", "ours beats the Global descriptor (ours minus Global, paired)")
     out += _searches(m, claims)
+    if (d / "table1_methods.png").exists():  # runs from 95b4ddf on draw Table 1 like with like
+        out += ["", "![Table 1 like with like](03_evaluate/table1_methods.png)"]
     out += _budget(d, claims)
     out += ["", "![examples](03_evaluate/examples_unseen.png)", "", "![fusion maps](03_evaluate/fusion_maps.png)", ""]
     byo = load_json(d / "byo.json")
