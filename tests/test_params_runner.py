@@ -15,9 +15,9 @@ from helpers.study.cli.runner import notebooks, preset_parameters
 
 def test_every_notebook_has_a_literal_parameters_cell():
     names = notebooks()
-    assert names[:3] == ["01_render", "02_train", "03_evaluate"] and names[-2:] == ["11_gap_to_paper",
-                                                                                   "12_training_screens"]
-    assert len(names) == 12
+    assert names[:3] == ["01_render", "02_train", "03_evaluate"] and names[-2:] == ["12_training_screens",
+                                                                                   "13_budget"]
+    assert len(names) == 13
     for n in names:
         d = declared_parameters(notebook_path(n))
         assert "out_dir" in d and d["out_dir"] == f"reports/smoke/{n}"
@@ -73,29 +73,43 @@ def test_kernel_namespace_check():
         check_parameters("02_train", ns)
 
 
-def test_byo_queries_fit_the_test_queries_evaluated():
+def test_byo_queries_fit_the_test_queries():
     from helpers.study.parameters import check_values
 
-    P = {**declared_parameters(notebook_path("03_evaluate")), "n_test_queries": 10}
-    check_values("03_evaluate", {**P, "test_queries": 0, "byo_queries": 10})
-    check_values("03_evaluate", {**P, "test_queries": 6, "byo_queries": 6})
-    with pytest.raises(ParameterError, match=r"'byo_queries' expects 0 \(all\) or at most test_queries=6"):
-        check_values("03_evaluate", {**P, "test_queries": 6, "byo_queries": 7})
+    P = {**declared_parameters(notebook_path("10_explore")), "n_test_queries": 10}
+    check_values("10_explore", {**P, "byo_queries": 10})
     with pytest.raises(ParameterError, match=r"'byo_queries' expects 0 \(all\) or at most n_test_queries=10"):
-        check_values("03_evaluate", {**P, "byo_queries": 11})
+        check_values("10_explore", {**P, "byo_queries": 11})
     with pytest.raises(ParameterError, match=r"'byo_queries' expects an int >= 0"):
-        check_values("03_evaluate", {**P, "byo_queries": -1})
+        check_values("10_explore", {**P, "byo_queries": -1})
 
 
-def test_byo_model_must_be_a_zoo_model_of_the_crop_size():
+@pytest.mark.parametrize("notebook,name", [("03_evaluate", "held_out_model"), ("10_explore", "byo_model")])
+def test_held_out_and_byo_models_must_be_zoo_models_of_the_crop_size(notebook, name):
     from helpers.study.parameters import check_values
 
-    P = declared_parameters(notebook_path("03_evaluate"))
-    check_values("03_evaluate", {**P, "image_size": 64, "byo_model": "all"})
-    with pytest.raises(ParameterError, match=r"'byo_model' expects a zoo model among .*'all'"):
-        check_values("03_evaluate", {**P, "byo_model": "everything"})
-    with pytest.raises(ParameterError, match=r"'byo_model' expects a model taking image_size=128"):
-        check_values("03_evaluate", {**P, "image_size": 128, "render_size": 160, "byo_model": "all"})
+    P = declared_parameters(notebook_path(notebook))
+    check_values(notebook, {**P, "image_size": 64, name: "all"})
+    with pytest.raises(ParameterError, match=rf"'{name}' expects a zoo model among .*'all'"):
+        check_values(notebook, {**P, name: "everything"})
+    with pytest.raises(ParameterError, match=rf"'{name}' expects a model taking image_size=128"):
+        check_values(notebook, {**P, "image_size": 128, "render_size": 160, name: "all"})
+
+
+def test_budget_pairs_are_checked():
+    """Notebook 13: [shorter, longer] zoo models of one split, the shorter first, one pair per split."""
+    from helpers.study.parameters import check_values
+
+    P = declared_parameters(notebook_path("13_budget"))
+    check_values("13_budget", {**P, "budgets": [["split1", "split1-12k"], ["split2", "split2-12k"]]})
+    check_values("13_budget", {**P, "budgets": []})  # nothing to compare: allowed, the notebook says so
+    for bad, match in ((["split1-12k", "split1"], "shorter budget first"), (["split1", "split2-12k"], "same split"),
+                       (["split1", "nope"], "zoo model among"), (["split1"], r"\[shorter, longer\]"),
+                       (["all", "split1-12k"], "same split")):
+        with pytest.raises(ParameterError, match=match):
+            check_values("13_budget", {**P, "budgets": [bad]})
+    with pytest.raises(ParameterError, match="one pair per split"):
+        check_values("13_budget", {**P, "budgets": [["split1", "split1-12k"], ["split1-seed1", "split1-12k"]]})
 
 
 def test_all_presets_validate_and_bad_preset_is_refused(tmp_path, monkeypatch):

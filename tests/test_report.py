@@ -82,18 +82,16 @@ def test_tables_format_numbers_by_magnitude():
     assert "512" in lines[3] and "0.610" in lines[3]
 
 
-def test_byo_line_reads_both_layouts_of_byo_json():
-    from helpers.study.experiments.evaluate import _byo_line
+def test_byo_line_reads_the_photos_accuracy():
+    from helpers.study.experiments.explore import byo_line
 
-    old = {"object": "racecar", "model": "all", "n_refs": 512, "error_deg": 176.04}  # one photo, before byo_queries
-    assert _byo_line(old, None) == ("Bring-your-own-object demo (all): `racecar` from its mesh file, 512 references, "
-                                    "error 176.0°.")
-    new = {**old, "n_queries": 40, "threshold_deg": 30.0, "rot_acc": 25.0, "ci95": [12.5, 40.0],
-           "median_err_deg": 151.26}
-    line = _byo_line(new, None)
+    byo = {"object": "racecar", "model": "all", "n_refs": 512, "error_deg": 176.04, "n_queries": 40,
+           "threshold_deg": 30.0, "rot_acc": 25.0, "ci95": [12.5, 40.0], "median_err_deg": 151.26}
+    line = byo_line(byo, None)
+    assert line.startswith("Bring your own object (all): `racecar` from its mesh file, 512 references: ")
     assert "25.0 % [12.5, 40.0] of its 40 test photos within 30°" in line
     assert "median error 151.3°" in line and line.endswith("error 176.0°.")
-    assert "[12.5, 40.0]" in _byo_line({k: v for k, v in new.items() if k != "ci95"}, {"ci95": [12.5, 40.0]})
+    assert "[12.5, 40.0]" in byo_line({k: v for k, v in byo.items() if k != "ci95"}, {"ci95": [12.5, 40.0]})
 
 
 def test_report_shows_seed_spread_and_a_reexecution(tmp_path):
@@ -129,27 +127,23 @@ def test_provenance_names_each_commit_with_its_notebooks_after_a_partial_rerun(t
     assert "notebooks ran at git commit `aaa`; " in build_report("z", root=tmp_path).read_text()
 
 
-def test_report_shows_notebook_03s_budget_comparison_with_its_claims(tmp_path):
-    """Section 3 carries the budget table and the paired longer-minus-shortest lines when 03 wrote them."""
+def test_report_shows_the_budget_comparison_with_its_claims(tmp_path):
+    """Notebook 13's section: the budget table and the paired longer-minus-shorter lines when it wrote them."""
     import numpy as np
     import pandas as pd
 
-    d = tmp_path / "b" / "03_evaluate"
+    d = tmp_path / "b" / "13_budget"
     d.mkdir(parents=True)
-    (d / "metrics.json").write_text(json.dumps({"table1": [{"split": "#1", "unseen rot_acc": 50.0}],
-                                                "table2": [{"method": "HOG", "rot_acc": 30.0}],
-                                                "held_out": {"rot_acc": 30.0, "class_acc": 60.0, "model": "all"}}))
-    ok = np.arange(40) < 20
-    ours = pd.DataFrame({"split": 1, "obj": "a", "query_id": [f"a:{i}" for i in range(40)], "part": "unseen",
-                         "rot_ok": ok, "class_ok": True})
-    ours.to_csv(d / "per_query_ours.csv", index=False)
-    ours.assign(rot_ok=np.arange(40) < 10, steps=4000, main_steps=12000).to_csv(
-        d / "per_query_ours_short_budget.csv", index=False)
+    q = pd.DataFrame({"split": 1, "obj": "a", "query_id": [f"a:{i}" for i in range(40)], "part": "unseen",
+                      "class_ok": True})
+    pd.concat([q.assign(rot_ok=np.arange(40) < 10, budget="shorter", steps=4000),
+               q.assign(rot_ok=np.arange(40) < 20, budget="longer", steps=12000)]).to_csv(
+        d / "per_query_budget.csv", index=False)
     pd.DataFrame([{"split": "#1", "unseen rot_acc, 4000 steps": 25.0, "unseen rot_acc, 12000 steps": 50.0}]).to_csv(
         d / "budget_splits.csv", index=False)
     rep = build_report("b", root=tmp_path).read_text()
-    assert "### Budget (the same queries, the zoo's shortest budget)" in rep and "unseen rot_acc, 4000 steps" in rep
-    assert "- the longer budget on unseen objects (longer minus shortest): +25.00 points" in rep
+    assert "## 13 · Training budget" in rep and "unseen rot_acc, 4000 steps" in rep
+    assert "- the longer budget on unseen objects (longer minus shorter): +25.00 points" in rep
     (d / "budget_splits.csv").unlink()
-    (d / "per_query_ours_short_budget.csv").unlink()
-    assert "### Budget" not in build_report("b", root=tmp_path).read_text()
+    (d / "per_query_budget.csv").unlink()
+    assert "Training budget" not in build_report("b", root=tmp_path).read_text()

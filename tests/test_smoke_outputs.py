@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from helpers.core.paths import REPO_ROOT
+from helpers.data.manifest import load_manifest
 from helpers.study.experiments import REGISTRY, build_claims
 from helpers.evaluation.search_results import FAST_ROW, GREEDY_ROW, SearchComparison, variant_row
 from helpers.evaluation.stats import VERDICTS
@@ -73,7 +74,7 @@ def test_train_metrics(session_start):
     assert steps == sorted(steps) and steps[-1] > 0
 
 
-def test_evaluation_metrics_and_byo(session_start):
+def test_evaluation_metrics(session_start):
     d = _fresh("03_evaluate", session_start)
     m = _json(d / "metrics.json")
     t1 = pd.DataFrame(m["table1"])
@@ -92,19 +93,6 @@ def test_evaluation_metrics_and_byo(session_start):
     assert set(like["method"]) == {"Ours", "HOG", "Global"} and set(like["search"]) == {"fast", "greedy"}
     held = _per_query(d / "per_query_held_out.csv", ("obj", "query_id", "rot_ok", "class_ok", "model"))
     assert set(held["obj"]).isdisjoint(ours["obj"])  # held-out objects belong to no split
-    byo = _json(d / "byo.json")
-    assert byo["model"] == m["held_out"]["model"] == held["model"].iloc[0] and byo["object"] in set(held["obj"])
-    R = np.array(byo["R_m2c"])
-    assert R.shape == (3, 3) and np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.linalg.det(R) > 0
-    assert 0.0 <= byo["error_deg"] <= 180.0
-    # every demo photo answered from the mesh file, the first one being the drawn one
-    per_q = _per_query(d / "byo_per_query.csv", ("obj", "query_id", "err_deg", "rot_ok", "score", "model"))
-    assert len(per_q) == byo["n_queries"] >= 1 and set(per_q["obj"]) == {byo["object"]}
-    assert per_q["err_deg"].iloc[0] == pytest.approx(byo["error_deg"])
-    assert (per_q["rot_ok"] == (per_q["err_deg"] < byo["threshold_deg"])).all() and byo["threshold_deg"] == 30.0
-    assert byo["rot_acc"] == pytest.approx(100 * per_q["rot_ok"].mean())
-    assert byo["ci95"][0] <= byo["rot_acc"] <= byo["ci95"][1]
-    assert byo["median_err_deg"] == pytest.approx(per_q["err_deg"].median()) and set(per_q["model"]) == {byo["model"]}
 
 
 @pytest.mark.parametrize("nb", ["04_ablation_scales", "05_ablation_fusion", "08_components"])
@@ -172,9 +160,38 @@ def test_tless_metrics(session_start):
     assert ours["vsd_ok"].isin([0, 1, True, False]).all()
 
 
-def test_explore_records(session_start):
-    e = _json(_fresh("10_explore", session_start) / "explore.json")
+def test_explore_records_and_byo(session_start):
+    d = _fresh("10_explore", session_start)
+    e = _json(d / "explore.json")
     assert len(e["bank"]) == 13 and e["queries"] and 0 <= e["score_peak_within_30deg"] <= len(e["queries"])
+    byo = _json(d / "byo.json")
+    held = set(load_manifest().held_out_objects())
+    assert byo["object"] in held and byo["model"] == e["model"]  # smoke: byo_model "" is the explorer's model
+    R = np.array(byo["R_m2c"])
+    assert R.shape == (3, 3) and np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.linalg.det(R) > 0
+    assert 0.0 <= byo["error_deg"] <= 180.0
+    # every photo answered from the mesh file, the first one being the drawn one
+    per_q = _per_query(d / "byo_per_query.csv", ("obj", "query_id", "err_deg", "rot_ok", "score", "model"))
+    assert len(per_q) == byo["n_queries"] >= 1 and set(per_q["obj"]) == {byo["object"]}
+    assert per_q["err_deg"].iloc[0] == pytest.approx(byo["error_deg"])
+    assert (per_q["rot_ok"] == (per_q["err_deg"] < byo["threshold_deg"])).all() and byo["threshold_deg"] == 30.0
+    assert byo["rot_acc"] == pytest.approx(100 * per_q["rot_ok"].mean())
+    assert byo["ci95"][0] <= byo["rot_acc"] <= byo["ci95"][1]
+    assert byo["median_err_deg"] == pytest.approx(per_q["err_deg"].median()) and set(per_q["model"]) == {byo["model"]}
+
+
+def test_budget_pairs(session_start):
+    d = _fresh("13_budget", session_start)
+    m = _json(d / "metrics.json")
+    pq = _per_query(d / "per_query_budget.csv", ("split", "part", "obj", "query_id", "rot_ok", "budget", "steps"))
+    assert [(p["shorter"], p["longer"]) for p in m["pairs"]] == [("split1", "split1-12k")]
+    assert set(pq["budget"]) == {"shorter", "longer"} and set(pq["part"]) == {"unseen", "seen"}
+    short, long = (pq[pq["budget"] == b].sort_values(["part", "query_id"]) for b in ("shorter", "longer"))
+    assert list(short["query_id"]) == list(long["query_id"])  # the same queries for both budgets
+    assert set(short["steps"]) == {4000} and set(long["steps"]) == {12000}
+    ids = {c["id"]: c for c in build_claims(SMOKE)}
+    assert {"longer_budget_unseen", "longer_budget_seen"} <= set(ids)
+    assert all(_pct(v) for row in m["table"] for k, v in row.items() if k != "split")
 
 
 def test_claims_of_the_smoke_reports(session_start):

@@ -33,7 +33,7 @@ from .stats import (
 HOG_BAND = (28.0, 38.0)
 #: The T-LESS-like set's calibration band for HOG's VSD accuracy (paper's HOG on T-LESS: 74.22 %).
 TLESS_HOG_BAND = (60.0, 85.0)
-#: The model of notebook 03's held-out objects and demo in files written before they named it (byo_model).
+#: The model of the held-out objects' or bring-your-own files written before they named it.
 UNNAMED_MODEL = "first split's model"
 #: Coarse-to-fine claims: "within 1 point of fast retrieval" (#15's target), an equivalence margin in points.
 C2F_MARGIN_PTS = 1.0
@@ -70,8 +70,7 @@ def _diff_record(id_: str, text: str, paper_value: float | None, c: dict, sign: 
 
 
 def evaluation_claims(d: Path) -> list[dict]:
-    """Claims of notebook 03 from its per-query tables (``per_query_*.csv``, and ``byo_per_query.csv``:
-    the bring-your-own check)."""
+    """Claims of Tables 1 and 2 from their per-query tables (``per_query_*.csv``)."""
     ours = _read_csv(d / "per_query_ours.csv")
     if ours is None:
         return []
@@ -95,18 +94,24 @@ def evaluation_claims(d: Path) -> list[dict]:
                                 "points; different renders, not paired)",
                                 round(pm - paper.LINEMOD_O_UNSEEN_ROT_ACC_MEAN, 2), unpaired_difference(occl, unseen)))
     held = _read_csv(d / "per_query_held_out.csv")
-    if held is not None:  # the 7 objects no split trains on; the model is named in the file (03: byo_model)
+    if held is not None:  # the 7 objects no split trains on; the model is named in the file (held_out_model)
         label = held["model"].iloc[0] if "model" in held.columns else UNNAMED_MODEL
         out.append(record("held_out_rot_acc", f"Rota. Acc. on the held-out objects, never trained on ({label}; "
                           "retrieved among all objects, %)", None, *accuracy_ci(held), MEASURED))
+    return out + _baseline_claims(d, unseen)
+
+
+def byo_claims(d: Path) -> list[dict]:
+    """The bring-your-own answers (``byo_per_query.csv``, ``byo.json``): one held-out object's test photos, each
+    answered from the object's mesh file alone (its own references, no classification)."""
     byo = _read_csv(d / "byo_per_query.csv")
-    if byo is not None:  # one held-out object's photos answered from its mesh file alone (no classification)
-        label = byo["model"].iloc[0] if "model" in byo.columns else UNNAMED_MODEL
-        threshold = (_load(d / "byo.json") or {}).get("threshold_deg", 30.0)
-        out.append(record("byo_rot_acc", f"bring your own: share of {byo['obj'].iloc[0]}'s {len(byo)} test photos "
-                          f"answered within {threshold:g} deg from its mesh file alone ({label}; its references "
-                          "only, %)", None, *accuracy_ci(byo), MEASURED))
-    return out + _baseline_claims(d, unseen) + _budget_claims(d, unseen, seen)
+    if byo is None:
+        return []
+    label = byo["model"].iloc[0] if "model" in byo.columns else UNNAMED_MODEL
+    threshold = (_load(d / "byo.json") or {}).get("threshold_deg", 30.0)
+    return [record("byo_rot_acc", f"bring your own: share of {byo['obj'].iloc[0]}'s {len(byo)} test photos "
+                   f"answered within {threshold:g} deg from its mesh file alone ({label}; its references only, %)",
+                   None, *accuracy_ci(byo), MEASURED)]
 
 
 def _search_of(df: pd.DataFrame | None, default: str) -> str:
@@ -160,21 +165,24 @@ def _hog_record(base: pd.DataFrame, suffix: str, how: str, paper_hog: float) -> 
                   calibration_verdict(v, HOG_BAND))
 
 
-def _budget_claims(d: Path, unseen: pd.DataFrame, seen: pd.DataFrame) -> list[dict]:
-    """The longer zoo budget minus the shortest on the same unseen / seen queries, paired (notebook 03 with
-    ``zoo_steps``: ``per_query_ours_short_budget.csv``)."""
-    short = _read_csv(d / "per_query_ours_short_budget.csv")
-    if short is None:
+def budget_claims(d: Path) -> list[dict]:
+    """The longer zoo budget minus the shorter on the same unseen / seen queries, paired per split
+    (``per_query_budget.csv``: one row per query and budget, ``budget`` "shorter" / "longer", ``steps``)."""
+    pq = _read_csv(d / "per_query_budget.csv")
+    if pq is None:
         return []
-    a, b = int(short["steps"].iloc[0]), int(short["main_steps"].iloc[0])
     out = []
-    for part, main in (("unseen", unseen), ("seen", seen)):
-        s = short[short["part"] == part]
-        if len(s) and len(main):
-            n_sp = s["split"].nunique()
-            out.append(_diff_record(f"longer_budget_{part}", f"the zoo's {b}-step models beat its {a}-step ones on "
-                                    f"{part} objects (Rota. Acc., mean of {n_sp} splits, points, paired)", None,
-                                    paired_difference(s, main)))
+    for part in ("unseen", "seen"):
+        short = pq[(pq["budget"] == "shorter") & (pq["part"] == part)]
+        long = pq[(pq["budget"] == "longer") & (pq["part"] == part)]
+        if not (len(short) and len(long)):
+            continue
+        a, b = sorted(short["steps"].unique()), sorted(long["steps"].unique())
+        steps = (lambda s: "/".join(str(int(x)) for x in s))
+        n_sp = short["split"].nunique()
+        out.append(_diff_record(f"longer_budget_{part}", f"the zoo's {steps(b)}-step models beat its {steps(a)}-step "
+                                f"ones on {part} objects (Rota. Acc., mean of {n_sp} split{'s' if n_sp > 1 else ''}, "
+                                "points, paired)", None, paired_difference(short, long)))
     return out
 
 

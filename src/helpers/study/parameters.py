@@ -181,7 +181,7 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
     if "test_queries" in P and P.get("n_test_queries") is not None and P["test_queries"] > P["n_test_queries"]:
         raise _err(notebook, "test_queries", f"0 (all) or at most n_test_queries={P['n_test_queries']}",
                    P["test_queries"])
-    if "byo_queries" in P and P.get("n_test_queries") is not None:  # 03: the photos come from the capped test set
+    if "byo_queries" in P and P.get("n_test_queries") is not None:  # 10: the photos come from the test set
         cap, what = (P["test_queries"], "test_queries") if P.get("test_queries") else (P["n_test_queries"],
                                                                                         "n_test_queries")
         if P["byo_queries"] > cap:
@@ -215,8 +215,6 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         m = P["lr_milestones"]
         if list(m) != sorted(set(m)) or any(x < 1 for x in m):
             raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
-    if P.get("byo_model"):  # 03: the held-out objects' and bring-your-own model
-        check_model_choice(notebook, "byo_model", P["byo_model"], P["image_size"])
     _check_configs(notebook, P)
 
 

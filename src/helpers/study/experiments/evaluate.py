@@ -1,16 +1,24 @@
-"""Notebook 03: Tables 1 and 2 (ours, HOG and the Global descriptor on the three splits, greedy and fast search),
-the held-out objects, the zoo's budget comparison and the bring-your-own answers."""
+"""Notebook 03: Tables 1 and 2 (ours, HOG and the Global descriptor on the three splits, greedy and fast search) and
+the held-out objects."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
 from ...evaluation import paper
 from ...evaluation.claims import HOG_BAND, UNNAMED_MODEL, evaluation_claims
+from ..parameter_rules import check_model_choice
 from ..report_format import claim_line, fmt, load_json, md_table
 from .base import Experiment
+
+
+def check(notebook: str, P: dict[str, Any]) -> None:
+    """The held-out objects' model, where named: a zoo model or checkpoint of the crop size."""
+    if P["held_out_model"]:
+        check_model_choice(notebook, "held_out_model", P["held_out_model"], P["image_size"])
 
 
 def section(d: Path, claims: dict[str, dict]) -> list[str]:
@@ -33,11 +41,7 @@ def section(d: Path, claims: dict[str, dict]) -> list[str]:
     out += _searches(m, claims)
     if (d / "table1_methods.png").exists():  # runs from 95b4ddf on draw Table 1 like with like
         out += ["", "![Table 1 like with like](03_evaluate/table1_methods.png)"]
-    out += _budget(d, claims)
     out += ["", "![examples](03_evaluate/examples_unseen.png)", "", "![fusion maps](03_evaluate/fusion_maps.png)", ""]
-    byo = load_json(d / "byo.json")
-    if byo:
-        out += [_byo_line(byo, claims.get("byo_rot_acc")), "", "![byo](03_evaluate/byo_overlay.png)", ""]
     return out
 
 
@@ -76,20 +80,6 @@ def _held_out_line(h: dict, claim: dict | None) -> list[str]:
             f"{fmt(h['rot_acc'])} %{ci}, Class. Acc. {fmt(h['class_acc'])} %"]
 
 
-def _byo_line(byo: dict, claim: dict | None) -> str:
-    """The bring-your-own demo's line: its photos' accuracy with the interval (files from before
-    ``byo_queries`` hold one photo and its error only)."""
-    head = (f"Bring-your-own-object demo ({byo.get('model', UNNAMED_MODEL)}): `{byo['object']}` from its mesh file, "
-            f"{byo['n_refs']} references")
-    if "n_queries" not in byo:
-        return f"{head}, error {fmt(byo['error_deg'])}°."
-    ci = byo.get("ci95") or (claim or {}).get("ci95")
-    ci = "" if not ci else f" [{ci[0]:.1f}, {ci[1]:.1f}]"
-    return (f"{head}: {fmt(byo['rot_acc'])} %{ci} of its {byo['n_queries']} test photos within "
-            f"{fmt(byo.get('threshold_deg', 30.0), 0)}°, median error {fmt(byo['median_err_deg'])}°; the photo "
-            f"drawn below: error {fmt(byo['error_deg'])}°.")
-
-
 def _searches(m: dict, claims: dict[str, dict]) -> list[str]:
     """Table 1 like with like: every method with greedy and fast search on the same references, and the paired
     claims of each search (nothing for files written before notebook 03 ran both)."""
@@ -103,17 +93,6 @@ def _searches(m: dict, claims: dict[str, dict]) -> list[str]:
     return out
 
 
-def _budget(d: Path, claims: dict[str, dict]) -> list[str]:
-    """Notebook 03's budget comparison (``budget_splits.csv``: the zoo's longer and shortest budget on the same
-    queries) with its paired claims; nothing when the notebook ran one budget."""
-    if not (d / "budget_splits.csv").exists():
-        return []
-    return ["", "### Budget (the same queries, the zoo's shortest budget)", "",
-            md_table(pd.read_csv(d / "budget_splits.csv")), "",
-            *claim_line(claims, "longer_budget_unseen", "the longer budget on unseen objects (longer minus shortest)"),
-            *claim_line(claims, "longer_budget_seen", "the longer budget on seen objects (longer minus shortest)")]
-
-
 #: The README's headline lines of this notebook (claim id, label).
 HEADLINE = (("unseen_rot_acc", "Unseen objects (Table 1, three splits, the protocol's search)"),
             ("hog_unseen_rot_acc", "HOG at the protocol's search: the benchmark's calibration (band 28-38 %)"),
@@ -121,10 +100,8 @@ HEADLINE = (("unseen_rot_acc", "Unseen objects (Table 1, three splits, the proto
             ("ours_minus_global", "Ours minus the Global descriptor, same search"),
             ("seen_rot_acc", "Seen objects' test views"),
             ("occluded_unseen_rot_acc", "Occluded unseen objects (LM-O-like)"),
-            ("held_out_rot_acc", "Held-out objects, never trained on (all-objects model)"),
-            ("byo_rot_acc", "Bring your own: a held-out object's photos answered from its mesh file"),
-            ("longer_budget_unseen", "Three times the training steps, unseen objects"))
+            ("held_out_rot_acc", "Held-out objects, never trained on (all-objects model)"))
 
 EXPERIMENT = Experiment("03_evaluate", "Tables 1 and 2: ours, HOG and Global on unseen, seen, occluded and held-out "
                         "objects, greedy and fast search", claims=evaluation_claims, section=section,
-                        headline=HEADLINE)
+                        check=check, headline=HEADLINE)
