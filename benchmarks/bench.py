@@ -25,7 +25,9 @@ measurement module:
   cache bytes (``retrieval_synthetic``, ``retrieval_real``,
   ``cache_bytes_13x10000``);
 * ``bench_precision.py``: bf16 against float32 training, speed and fidelity
-  (``precision``; opt-in, run only when named in ``--sections``).
+  (``precision``; opt-in, run only when named in ``--sections``);
+* ``bench_profile.py``: one training step phase by phase, and validation's share
+  (``train_profile``; opt-in).
 
 Only the standard library and numpy are imported at module level (here and in
 those modules): rendering workers are *spawned*, and a spawned worker
@@ -70,6 +72,7 @@ from bench_retrieval import (  # noqa: E402,F401
 )
 from bench_config import FULL, QUICK, BenchConfig  # noqa: E402,F401
 from bench_precision import bench_precision  # noqa: E402
+from bench_profile import bench_train_profile  # noqa: E402
 from bench_train import _model, bench_encode, bench_train, bench_train_ab, monotone_readout  # noqa: E402,F401
 from timing import PeakSampler, Probe, background_load, log, measure, memory_snapshot, source_hashes  # noqa: E402,F401
 
@@ -77,7 +80,7 @@ from timing import PeakSampler, Probe, background_load, log, measure, memory_sna
 
 #: Sections of a plain run, in order; OPT_IN ones run only when named (``--sections``).
 DEFAULT_SECTIONS = ("render", "train", "train_ab", "encode", "fusion", "retrieval_synthetic", "retrieval_real")
-OPT_IN_SECTIONS = ("precision",)
+OPT_IN_SECTIONS = ("precision", "train_profile")
 
 REPO = Path(__file__).resolve().parents[1]
 SCHEMA_VERSION = 1
@@ -228,6 +231,7 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
     section("retrieval_synthetic", lambda: bench_retrieval_synthetic(cfg, tmp_root))
     section("retrieval_real", lambda: bench_real_agreement(cfg, checkpoint, tmp_root))
     section("precision", lambda: bench_precision(cfg))
+    section("train_profile", lambda: bench_train_profile(cfg))
 
     res["cache_bytes_13x10000"] = cache_bytes(sizes=(64, 128))
     written = res.get("retrieval_synthetic", {}).get("write")
@@ -313,6 +317,10 @@ def summarise(res: dict) -> dict:
             s["real_rot_acc_c2f_pct"] = rr["c2f"]["rot_acc_pct"]
             s["real_agreement_c2f_greedy_same_reference"] = rr["agreement_c2f_greedy_same_reference"]
             s["real_agreement_c2f_fast_same_reference"] = rr["agreement_c2f_fast_same_reference"]
+    for sz, v in res.get("train_profile", {}).get("sizes", {}).items():
+        s[f"train_profile_encode_share_{sz}"] = v["share"]["encode"]
+        s[f"train_profile_not_encoder_share_{sz}"] = v["not_encoder_share"]
+        s[f"train_profile_validation_share_zoo_{sz}"] = v["validation_share_per_step"]["zoo"]
     pr = res.get("precision")
     if pr:
         s["precision_ratio_bf16_over_fp32"] = pr["speed"]["ratio_bf16_over_fp32"]

@@ -69,6 +69,10 @@ class BenchConfig:
     precision_repeats: int = 20  # timed training steps per precision
     precision_steps: int = 300  # optimiser steps of each of the two fidelity trainings
     precision_tiny_data: bool = False  # a few renders per object instead of the quick data (tests)
+    # 7. where a training step's time goes (section ``train_profile``, opt-in)
+    profile_steps: int = 10  # timed steps per size (after one untimed)
+    profile_val_views: int = 24  # validation views per object (the quick preset's n_val_queries)
+    profile_val_refs: int = 128  # validation references per object (the quick preset's val_refs)
     # contention control
     quiet_threshold: float = 0.2  # max fraction of all CPUs busy with OTHER processes
     retry_contended: int = 2  # re-run a contended repeat up to this many times

@@ -186,3 +186,21 @@ def test_the_opt_in_precision_section_runs_alone_and_unknown_sections_are_refuse
     assert isinstance(res["summary"]["precision_within_tolerance"], bool)
     with pytest.raises(ValueError, match="unknown"):
         bench.run(cfg, tmp_path / "x.json", sections=("precison",))
+
+
+def test_the_opt_in_training_profile_splits_a_step_into_its_phases(tmp_path):
+    """``--sections train_profile``: every phase timed, shares summing to one, validation per call and per step."""
+    bench = _load_bench()
+    cfg = bench.BenchConfig(mode="tiny", sizes=(64,), train_ab_batch=2, train_ab_objects=2, train_ab_refs_per_object=8,
+                            train_ab_queries_per_object=4, profile_steps=2, profile_val_views=2, profile_val_refs=4,
+                            retry_contended=0)
+    res = bench.run(cfg, tmp_path / "p.json", tmp_root=str(tmp_path), sections=("train_profile",))
+    v = res["train_profile"]["sizes"]["64"]
+    import bench_profile  # importable once bench.py put its folder on the path
+
+    assert set(v["median_s"]) == set(bench_profile.PHASES)
+    _positive(v["median_s"], "batch", "encode", "backward", "optimizer")
+    assert math.isclose(sum(v["share"].values()), 1.0, rel_tol=1e-9) and 0.0 <= v["not_encoder_share"] < 1.0
+    assert v["validation_s_per_call"] > 0 and 0 < v["validation_share_per_step"]["zoo"] < \
+        v["validation_share_per_step"]["quick"] < 1
+    assert 0 < res["summary"]["train_profile_encode_share_64"] < 1
