@@ -267,7 +267,7 @@ def test_second_byo_call_renders_and_encodes_nothing(tmp_path, manifest, monkeyp
 
 
 def test_answer_views_reads_each_photo_back_as_a_png_and_scores_it_with_the_object_symmetries(monkeypatch):
-    """Notebook 03's bring-your-own check: the references are built once, every photo reaches the
+    """Notebook 10's bring-your-own check: the references are built once, every photo reaches the
     search as the user's PNG would (pixels unchanged), and errors use the benchmark's metric (an
     answer equal up to a symmetry is right)."""
     from types import SimpleNamespace

@@ -105,11 +105,13 @@ def test_budget_pairs_are_checked():
     check_values("13_budget", {**P, "budgets": []})  # nothing to compare: allowed, the notebook says so
     for bad, match in ((["split1-12k", "split1"], "shorter budget first"), (["split1", "split2-12k"], "same split"),
                        (["split1", "nope"], "zoo model among"), (["split1"], r"\[shorter, longer\]"),
-                       (["all", "split1-12k"], "same split")):
+                       (["all", "split1-12k"], "same split"),
+                       (["split1-seed1", "split1-12k"], r"also differ in \['train.seed'\]"),
+                       (["avg", "split1-12k"], "one recipe at two budgets")):
         with pytest.raises(ParameterError, match=match):
             check_values("13_budget", {**P, "budgets": [bad]})
     with pytest.raises(ParameterError, match="one pair per split"):
-        check_values("13_budget", {**P, "budgets": [["split1", "split1-12k"], ["split1-seed1", "split1-12k"]]})
+        check_values("13_budget", {**P, "budgets": [["split1", "split1-12k"], ["split1", "split1-12k"]]})
 
 
 def test_all_presets_validate_and_bad_preset_is_refused(tmp_path, monkeypatch):

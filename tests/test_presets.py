@@ -43,6 +43,11 @@ def test_notebooks_sharing_data_or_a_model_agree(preset):
     assert not _disagreements(P, tuple(nb for nb in MAIN_MODEL if nb != "03_evaluate"), ("epochs",)), \
         f"{preset}: 02, 06 and 07 train the main model for different budgets"
     assert not _disagreements(P, ABLATIONS, TRAINING), f"{preset}: the ablations' training parameters differ"
+    # Notebook 13 compares zoo models (64 px) on notebook 03's queries wherever 03 runs at that crop size; where it
+    # does not (paper: 128 px), 13 evaluates on the quick-size benchmark, as the explorer does.
+    if P["03_evaluate"]["image_size"] == P["13_budget"]["image_size"]:
+        assert not _disagreements(P, ("03_evaluate", "13_budget"), _DATA + ("k_ac", "fps_k", "eval_method")), \
+            f"{preset}: notebook 13 answers other queries, references or search than notebook 03"
 
 
 @pytest.mark.parametrize("preset", [p for p in PRESETS if (runner.PRESET_DIR / p).is_dir()])

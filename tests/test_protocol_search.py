@@ -38,9 +38,9 @@ def test_stale_files_of_the_protocols_own_search_are_dropped(tmp_path):
     from helpers.study.protocols.linemod import drop_stale_search_files
 
     for name in ("per_query_ours.csv", "per_query_ours_fast.csv", "per_query_hog_greedy.csv",
-                 "per_query_ours_greedy.csv", "per_query_ours_short_budget.csv"):
+                 "per_query_ours_greedy.csv", "table1_splits.csv"):
         (tmp_path / name).write_text("x\n")
     gone = drop_stale_search_files(tmp_path, GREEDY)
     assert sorted(p.name for p in gone) == ["per_query_hog_greedy.csv", "per_query_ours_greedy.csv"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["per_query_ours.csv", "per_query_ours_fast.csv",
-                                                          "per_query_ours_short_budget.csv"]
+                                                          "table1_splits.csv"]

@@ -245,29 +245,28 @@ def test_long_preset_trains_the_zoo_recipes_runs():
 
 
 @pytest.mark.slow
-def test_notebook_03_compares_the_longer_zoo_budget_with_the_shortest_on_the_same_queries(tmp_path):
-    """Notebook 03 (smoke data, split #1) with models="zoo" and zoo_steps=12000 evaluates split1-12k and, on the
-    same unseen / seen queries, split1 (4,000 steps); the budget claims pair them. A later run at the shortest
-    budget removes the comparison's files, so no stale file enters its claims."""
+def test_notebook_13_compares_two_zoo_budgets_on_the_same_queries_and_removes_them_without_pairs(tmp_path):
+    """Notebook 13 (smoke data, split #1) evaluates split1 (4,000 steps) and split1-12k on the same unseen and seen
+    queries; the budget claims pair them. A later run without pairs removes the comparison's files, so no stale file
+    enters its claims."""
     import pandas as pd
     import papermill as pm
 
     from helpers.study.experiments import build_claims
     from helpers.study.parameters import notebook_path
 
-    out = tmp_path / "03_evaluate"
-    base = {"models": "zoo", "splits": [1], "baseline_splits": [1], "out_dir": str(out)}
-    pm.execute_notebook(str(notebook_path("03_evaluate")), str(tmp_path / "a.ipynb"), kernel_name="python3",
-                        parameters={**base, "zoo_steps": 12000}, progress_bar=False)
-    ours, short = (pd.read_csv(out / f) for f in ("per_query_ours.csv", "per_query_ours_short_budget.csv"))
-    assert set(short["steps"]) == {4000} and set(short["main_steps"]) == {12000}
+    out = tmp_path / "13_budget"
+    pm.execute_notebook(str(notebook_path("13_budget")), str(tmp_path / "a.ipynb"), kernel_name="python3",
+                        parameters={"out_dir": str(out)}, progress_bar=False)
+    pq = pd.read_csv(out / "per_query_budget.csv")
+    short, long = (pq[pq["budget"] == b] for b in ("shorter", "longer"))
+    assert set(short["steps"]) == {4000} and set(long["steps"]) == {12000}
     key = ["split", "part", "query_id"]
-    assert sorted(map(tuple, short[key].values)) == \
-        sorted(map(tuple, ours[ours["part"].isin(["unseen", "seen"])][key].values))
+    assert sorted(map(tuple, short[key].values)) == sorted(map(tuple, long[key].values))
     ids = {c["id"]: c for c in build_claims(tmp_path)}
     assert {"longer_budget_unseen", "longer_budget_seen"} <= set(ids)
     assert "12000-step" in ids["longer_budget_unseen"]["claim"]
-    pm.execute_notebook(str(notebook_path("03_evaluate")), str(tmp_path / "b.ipynb"), kernel_name="python3",
-                        parameters={**base, "zoo_steps": 0}, progress_bar=False)
-    assert not (out / "per_query_ours_short_budget.csv").exists() and not (out / "budget_splits.csv").exists()
+    pm.execute_notebook(str(notebook_path("13_budget")), str(tmp_path / "b.ipynb"), kernel_name="python3",
+                        parameters={"out_dir": str(out), "budgets": []}, progress_bar=False)
+    assert not (out / "per_query_budget.csv").exists() and not (out / "budget_splits.csv").exists()
     assert not any(c["id"].startswith("longer_budget") for c in build_claims(tmp_path))

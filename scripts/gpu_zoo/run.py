@@ -62,7 +62,7 @@ def train_all(names: list[str], recipes: str, deadline: float, threads: int, out
     procs = {}
     for n in names:
         f = open(LOGS / f"train-{n}.log", "w")  # outside $OUT: only the tail travels, in log.txt
-        procs[n] = (subprocess.Popen([sys.executable, "-m", "helpers.study.zoo", "train", n, "--publish",
+        procs[n] = (subprocess.Popen([sys.executable, "-m", "helpers.study.cli.zoo", "train", n, "--publish",
                                       "--recipes", recipes], cwd=REPO, env=env, stdout=f, stderr=subprocess.STDOUT,
                                      start_new_session=True), f)
     codes: dict[str, int | None] = {}
@@ -101,7 +101,7 @@ def pack(names: list[str], recipes: str, out: Path) -> None:
             (zoo_dir / f"{name}.entry.yaml").write_text(yaml.safe_dump({name: entries[name]}, sort_keys=False))
             files, dst = sorted(zoo_dir.glob(f"{name}.*")), out / f"{name}.zoo.tgz"
         else:
-            res = subprocess.run([sys.executable, "-m", "helpers.study.zoo", "snapshot", name, "--recipes", recipes],
+            res = subprocess.run([sys.executable, "-m", "helpers.study.cli.zoo", "snapshot", name, "--recipes", recipes],
                                  cwd=REPO,
                                  capture_output=True, text=True)
             if res.returncode != 0:

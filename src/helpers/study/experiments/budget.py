@@ -14,9 +14,19 @@ from ..report_format import claim_line, md_table
 from .base import Experiment
 
 
+#: The training fields that set a budget; a pair may differ in these and nothing else.
+BUDGET_FIELDS = ("epochs", "steps_per_epoch")
+
+
+def _recipe(e: dict) -> dict:
+    """A zoo entry's recipe without its budget: data, seen objects, every training field but :data:`BUDGET_FIELDS`."""
+    return {"data": e.get("data"), "seen_objects": e.get("seen_objects"),
+            **{f"train.{k}": v for k, v in e.get("train", {}).items() if k not in BUDGET_FIELDS}}
+
+
 def check(notebook: str, P: dict[str, Any]) -> None:
-    """``budgets``: [shorter, longer] pairs of zoo models of the crop size, each pair one split, fewer steps
-    first, one pair per split."""
+    """``budgets``: [shorter, longer] pairs of zoo models of the crop size, each pair one split and one recipe at
+    two budgets (fewer steps first), one pair per split."""
     zoo, splits = zoo_entries(), []
     for pair in P["budgets"]:
         if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(x, str) for x in pair)):
@@ -29,6 +39,11 @@ def check(notebook: str, P: dict[str, Any]) -> None:
         short, long = (zoo[n] for n in pair)
         if int(short["split"]) != int(long["split"]) or int(short["split"]) == 0:
             raise param_error(notebook, "budgets", "pairs of models of the same split (1-3)", pair)
+        if _recipe(short) != _recipe(long):
+            diff = sorted(k for k in set(_recipe(short)) | set(_recipe(long))
+                          if _recipe(short).get(k) != _recipe(long).get(k))
+            raise param_error(notebook, "budgets", f"pairs of one recipe at two budgets ({pair[0]} and {pair[1]} "
+                              f"also differ in {diff})", pair)
         if not int(short["steps"]) < int(long["steps"]):
             raise param_error(notebook, "budgets", f"the shorter budget first ({pair[0]}: {short['steps']} steps, "
                               f"{pair[1]}: {long['steps']})", pair)
