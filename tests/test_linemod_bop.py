@@ -42,3 +42,43 @@ def test_seen_views_separate_into_train_val_and_a_ten_percent_test_split():
     assert {k: list(v) for k, v in lm.partition_views(1200, 24).items()} == {k: list(v) for k, v in p.items()}
     with pytest.raises(ValueError, match="leave none to train on"):
         lm.partition_views(20, 18)
+
+
+def test_a_bop_folder_becomes_a_manifest_with_the_papers_splits_and_declared_symmetries(tmp_path):
+    import json
+
+    import trimesh
+    from test_bop import make_bop  # the hand-made BOP folder: objects 1 (ape) and 2 (benchvise)
+
+    from helpers.core.fileio import sha256_file
+    from helpers.core.rotations import Symmetries
+    from helpers.data.bop import BOPFormatError
+
+    root = make_bop(tmp_path / "lm")
+    m = lm.bop_manifest(root)
+    assert m.object_names() == ["ape", "benchvise"] and m.split_objects(1) == ["ape", "benchvise"]
+    assert m.split_objects(2) == [] and m.seen_objects(2) == ["ape", "benchvise"] and m.held_out_objects() == []
+    ape = m.object("ape")
+    assert ape.mesh.resolve() == (root / "models" / "obj_000001.ply").resolve()
+    assert ape.mesh.sha256 == sha256_file(ape.mesh.resolve())
+    g = ape.symmetry_group()  # identity and the declared 180 deg turn about z
+    assert g.shape == (2, 3, 3) and np.allclose(g[1], np.diag([-1.0, -1.0, 1.0]))
+    bv = m.object("benchvise").symmetry_group()  # a continuous axis, kept exact
+    assert isinstance(bv, Symmetries) and np.allclose(bv.axes, [[0, 0, 1]])
+
+    trimesh.creation.box(extents=(5, 5, 5)).export(root / "models" / "obj_000004.ply")  # cam: mesh, no entry
+    with pytest.raises(BOPFormatError, match=r"no entry for the mesh\(es\) of object id\(s\) \[4\] \(cam\)"):
+        lm.bop_manifest(root)
+    (root / "models" / "obj_000004.ply").unlink()
+    (root / "models" / "obj_000001.ply").unlink()
+    with pytest.raises(BOPFormatError, match="obj_000001.ply: file does not exist.*ape"):
+        lm.bop_manifest(root)
+    with pytest.raises(BOPFormatError, match="no models_info.json"):
+        lm.bop_manifest(tmp_path)
+    bowl = tmp_path / "bowl"
+    (bowl / "models").mkdir(parents=True)
+    (bowl / "models" / "models_info.json").write_text(json.dumps({"3": {"diameter": 10.0}}))
+    with pytest.raises(BOPFormatError, match="none of the paper's LineMOD objects"):
+        lm.bop_manifest(bowl)
+    with pytest.raises(ValueError, match="expected one of"):
+        lm.bop_manifest(root, "ycbv")

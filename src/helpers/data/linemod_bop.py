@@ -16,7 +16,15 @@ Symmetries come from the dataset's ``models_info.json`` (:func:`helpers.data.bop
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
+
+from ..core.fileio import sha256_file
+from ..core.rotations import Symmetries
+from .bop import BOPFormatError, _models_info_path, load_models_info
+from .manifest import FileEntry, Manifest, ObjectEntry, Source
 
 #: BOP object id -> name, the 13 LineMOD objects of the paper.
 LM_OBJECTS: dict[int, str] = {1: "ape", 2: "benchvise", 4: "cam", 5: "can", 6: "cat", 8: "driller", 9: "duck",
@@ -89,3 +97,49 @@ def partition_views(n: int, n_val: int) -> dict[str, np.ndarray]:
     val = rest[pick]
     train = np.setdiff1d(rest, val)
     return {"train": train, "val": val, "test": test}
+
+
+def _symmetry_fields(group) -> tuple[tuple, tuple]:
+    """(discrete rotations without the identity, continuous axes) of a models_info group, as ObjectEntry holds them."""
+    disc = group.discrete if isinstance(group, Symmetries) else np.asarray(group)
+    axes = tuple(map(tuple, group.axes)) if isinstance(group, Symmetries) else ()
+    rots = tuple(tuple(map(tuple, R)) for R in disc if not np.allclose(R, np.eye(3)))
+    return rots, axes
+
+
+def bop_manifest(root: str | os.PathLike, dataset: str = "lm") -> Manifest:
+    """The paper's LineMOD objects present in a BOP folder as a :class:`helpers.data.manifest.Manifest`: role
+    ``train``, each with its paper split, its mesh ``models/obj_XXXXXX.ply`` (sha256 taken here) and the
+    symmetries ``models_info.json`` declares; objects outside the paper's 13 (bowl, cup) are left out.
+
+    Errors (:class:`helpers.data.bop.BOPFormatError`) name the folder or file: no ``models_info.json``, a mesh of
+    the paper's objects without its ``models_info.json`` entry, an entry without its mesh, none of the objects.
+    """
+    if dataset not in DATASETS:
+        raise ValueError(f"dataset {dataset!r}: expected one of {sorted(DATASETS)}")
+    root = Path(root).resolve()
+    info_path = _models_info_path(root)
+    infos = load_models_info(root)
+    wanted = {object_id(n) for n in dataset_objects(dataset)}
+    meshes = {int(p.stem.split("_")[1]) for p in (root / "models").glob("obj_*.ply") if p.stem[4:].isdigit()}
+    orphans = sorted((meshes & wanted) - set(infos))
+    if orphans:
+        raise BOPFormatError(f"{info_path}: no entry for the mesh(es) of object id(s) {orphans} "
+                             f"({', '.join(LM_OBJECTS[i] for i in orphans)}); every mesh needs its symmetries entry")
+    source = Source(name=f"BOP {dataset}", package="", version="", licence="the data set's own", module="")
+    objects = []
+    for obj_id in sorted(wanted & set(infos)):
+        mesh = root / "models" / f"obj_{obj_id:06d}.ply"
+        if not mesh.is_file():
+            raise BOPFormatError(f"{mesh}: file does not exist (expected the mesh of object {obj_id}, "
+                                 f"{LM_OBJECTS[obj_id]}, listed in {info_path})")
+        name = LM_OBJECTS[obj_id]
+        split = next(s for s, names in PAPER_SPLITS.items() if name in names)
+        rots, axes = _symmetry_fields(infos[obj_id].exact_symmetries)
+        objects.append(ObjectEntry(name, "train", split, source,
+                                   FileEntry("", str(mesh.relative_to(root)), sha256_file(mesh), str(root)), (), None,
+                                   source.licence, f"LineMOD {name} (BOP {dataset} object {obj_id})", rots, axes))
+    if not objects:
+        raise BOPFormatError(f"{info_path}: none of the paper's LineMOD objects is listed "
+                             f"(expected BOP ids among {sorted(wanted)})")
+    return Manifest(info_path, {source.name: source}, tuple(objects), ())

@@ -32,14 +32,15 @@ class ManifestError(ValueError):
 
 @dataclass(frozen=True)
 class FileEntry:
-    """One file inside an installed package."""
+    """One file inside an installed package, or (``root`` set) inside a data set folder the user gives."""
 
-    module: str  # importable top-level module that holds the file, e.g. "pybullet_data"
-    path: str  # path relative to the module directory
+    module: str  # importable top-level module that holds the file, e.g. "pybullet_data" ("" with root)
+    path: str  # path relative to the module directory (or to root)
     sha256: str
+    root: str = ""  # a data set folder (e.g. a BOP copy of LineMOD) instead of a package
 
     def resolve(self) -> Path:
-        return module_dir(self.module) / self.path
+        return Path(self.root) / self.path if self.root else module_dir(self.module) / self.path
 
 
 @dataclass(frozen=True)
