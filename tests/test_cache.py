@@ -129,7 +129,7 @@ def test_damaged_checkpoint_is_named_then_verify_finds_it_and_prune_removes_it(r
     assert cache_cli.main(["--cache", str(cache), "verify"]) == 0
     best = next(cache.glob("runs/split1-*/best.pt"))
     _truncate(best)
-    with pytest.raises(DamagedEntry, match=r"best\.pt: content does not match .*helpers\.study\.cache prune"):
+    with pytest.raises(DamagedEntry, match=r"best\.pt: content does not match .*helpers\.study\.cli\.cache prune"):
         cache_worker.build("train", str(cache))
     capsys.readouterr()
     assert cache_cli.main(["--cache", str(cache), "verify"]) == 1
