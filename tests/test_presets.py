@@ -22,7 +22,7 @@ TRAINING = _MODEL + _TRAIN + ("val_refs",)
 
 
 def _params(preset: str) -> dict[str, dict]:
-    return {nb: runner.preset_parameters(preset, nb) for nb in runner.notebooks()}
+    return {nb: runner.preset_parameters(preset, nb) for nb in runner.preset_notebooks(preset)}
 
 
 def _disagreements(P: dict[str, dict], notebooks: tuple[str, ...], keys: tuple[str, ...]) -> dict:
@@ -45,7 +45,7 @@ def test_notebooks_sharing_data_or_a_model_agree(preset):
     assert not _disagreements(P, ABLATIONS, TRAINING), f"{preset}: the ablations' training parameters differ"
     # Notebook 13 compares zoo models (64 px) on notebook 03's queries wherever 03 runs at that crop size; where it
     # does not (paper: 128 px), 13 evaluates on the quick-size benchmark, as the explorer does.
-    if P["03_evaluate"]["image_size"] == P["13_budget"]["image_size"]:
+    if "13_budget" in P and P["03_evaluate"]["image_size"] == P["13_budget"]["image_size"]:
         assert not _disagreements(P, ("03_evaluate", "13_budget"), _DATA + ("k_ac", "fps_k", "eval_method")), \
             f"{preset}: notebook 13 answers other queries, references or search than notebook 03"
 
@@ -76,3 +76,18 @@ def test_common_file_is_merged_and_checked(tmp_path, monkeypatch):
     (d / runner.COMMON).write_text("epochs: three\n")
     with pytest.raises(ParameterError, match=r"common.yaml.*'epochs' expects int"):
         runner.preset_parameters("quick", "03_evaluate")
+
+
+def test_the_real_data_preset_runs_the_notebooks_of_real_data_only(tmp_path, monkeypatch):
+    """real-lm lists its notebooks (01-08); every one reads bop_root and trains here (the zoo's models know
+    the rendered benchmark only); a bad list is an error naming the file."""
+    names = runner.preset_notebooks("real-lm")
+    assert names == list(BENCHMARK) and runner.preset_notebooks("quick") == runner.notebooks()
+    for nb in names:
+        P = runner.preset_parameters("real-lm", nb)
+        assert P["bop_root"] == "data/bop" and P.get("models", "train") == "train" and not P.get("held_out_model")
+    monkeypatch.setattr(runner, "PRESET_DIR", tmp_path)
+    (tmp_path / "real-lm").mkdir()
+    (tmp_path / "real-lm" / runner.NOTEBOOK_LIST).write_text("- 01_render\n- 99_nothing\n")
+    with pytest.raises(ParameterError, match="notebooks.yaml: expected a non-empty list of notebook names"):
+        runner.preset_notebooks("real-lm")

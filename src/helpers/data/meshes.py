@@ -85,6 +85,11 @@ def has_texture(mesh: trimesh.Trimesh) -> bool:
             and getattr(getattr(vis, "material", None), "image", None) is not None)
 
 
+def has_vertex_colours(mesh: trimesh.Trimesh) -> bool:
+    """Colours stored per vertex (LineMOD's PLY meshes): the renderer draws them as a texture's stand-in."""
+    return getattr(mesh.visual, "kind", None) == "vertex"
+
+
 def normalise(mesh: trimesh.Trimesh, diameter: float = DEFAULT_DIAMETER_M) -> trimesh.Trimesh:
     """Centre on the bounding-box centre and scale to ``diameter`` metres (copy)."""
     mesh = mesh.copy()
@@ -137,8 +142,9 @@ def load_object(name: str, manifest: Manifest | None = None, diameter: float = D
         mesh = set_color(mesh, entry.color)
         textured = False
     else:
-        if not has_texture(mesh):
-            raise ManifestError(f"object {name!r}: manifest says textured (no colour) but {path} loaded without a texture")
+        if not (has_texture(mesh) or has_vertex_colours(mesh)):
+            raise ManifestError(f"object {name!r}: manifest says textured (no colour) but {path} loaded without a "
+                                "texture or vertex colours")
         textured = True
     mesh = normalise(mesh, diameter)
     return ObjectMesh(name, mesh, diameter, textured, entry.mesh.sha256, entry.symmetry_group())

@@ -57,7 +57,8 @@ def view_grid(rows: dict[str, list[ObjectViews]], n_per_set: int, path: str | os
     """One row per object: the first ``n_per_set`` views of each of its view sets side by side.
 
     Args:
-        rows: {object name: [ObjectViews, ...]} (e.g. references then queries).
+        rows: {object name: [ObjectViews or None, ...]} (e.g. references then queries; None: a set the object
+            does not have, drawn blank).
         titles: optional label per view set, shown above the first row.
     """
     plt = _plt()
@@ -69,7 +70,7 @@ def view_grid(rows: dict[str, list[ObjectViews]], n_per_set: int, path: str | os
         for s, vs in enumerate(rows[name]):
             for j in range(n_per_set):
                 ax = axes[r, s * n_per_set + j]
-                if j < len(vs):
+                if vs is not None and j < len(vs):
                     ax.imshow(vs.images[j])
                 ax.set_xticks([])
                 ax.set_yticks([])

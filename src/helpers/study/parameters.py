@@ -22,6 +22,8 @@ from typing import Any
 from ..core.configs import (QUERY_STYLES, AugmentConfig, DataConfig, ModelConfig, SearchConfig, TrainConfig,
                             paper_ratio_search, parse_scales)
 from ..core.paths import REPO_ROOT, repo_path
+from ..data.bop import BOPFormatError
+from ..data.linemod_real import bop_folders
 from ..evaluation.paper import COMPONENT_LABELS
 from .experiments import experiment
 from .parameter_rules import FUSIONS, ParameterError, check_model_choice, scales_ok, zoo_entries
@@ -198,6 +200,8 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         v = P.get(name)  # coarse-to-fine candidates (07): chosen among on held-out views of seen objects
         if v is not None and ((not v and not may_be_empty) or len(set(v)) != len(v) or any(x < 1 for x in v)):
             raise _err(notebook, name, f"a list of distinct ints >= 1{' (empty: skip)' if may_be_empty else ''}", v)
+    if P.get("bop_root"):
+        _check_bop_root(notebook, P)
     if P.get("report_dir") and not repo_path(P["report_dir"]).is_dir():
         raise _err(notebook, "report_dir", "'' or an existing report folder (relative paths from the repository "
                    f"root: {REPO_ROOT})", P["report_dir"])
@@ -216,6 +220,20 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         if list(m) != sorted(set(m)) or any(x < 1 for x in m):
             raise _err(notebook, "lr_milestones", "increasing positive epochs", m)
     _check_configs(notebook, P)
+
+
+def _check_bop_root(notebook: str, P: dict[str, Any]) -> None:
+    """Real data: the folder's layout, and the choices that only the rendered benchmark has."""
+    try:
+        bop_folders(P["bop_root"])
+    except BOPFormatError as e:
+        raise ParameterError(f"notebook {notebook}: parameter 'bop_root': {e}") from None
+    if P.get("models") == "zoo":
+        raise _err(notebook, "models", "'train' with bop_root (the zoo's models trained on the rendered benchmark's "
+                   "objects, not on LineMOD's)", P["models"])
+    if P.get("held_out_model"):
+        raise _err(notebook, "held_out_model", "'' with bop_root (real LineMOD has no held-out objects)",
+                   P["held_out_model"])
 
 
 def _check_zoo_steps(notebook: str, steps: int) -> None:

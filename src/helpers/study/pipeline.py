@@ -23,6 +23,8 @@ from ..core.paths import cache_dir
 from ..core.views import ObjectViews
 from ..data.datasets import ViewSetSpec, render_sets
 from ..data.gl import gl_platform
+from ..data.linemod_bop import LMO_OBJECT_IDS, bop_manifest, object_id, partition_views
+from ..data.linemod_real import bop_folders, real_views, spread
 from ..data.manifest import Manifest, load_manifest
 from ..data.render import query_style
 from ..evaluation.metrics import Record, per_query_table, summarise_queries
@@ -45,20 +47,30 @@ class StudyData:
     test_q: dict[str, ObjectViews] = field(default_factory=dict)
     occluded_q: dict[str, ObjectViews] = field(default_factory=dict)
     clean_q: dict[str, ObjectViews] = field(default_factory=dict)
+    #: Real data only: a SEEN object's test views (its every tenth view), where ``test_q`` holds all its views
+    #: (what it is tested on where it is unseen). Rendered benchmark: empty, ``test_q`` serves both.
+    seen_test_q: dict[str, ObjectViews] = field(default_factory=dict)
 
     def key(self, name: str, kind: str = "refs") -> str:
         return getattr(self, kind)[name].meta["key"]
 
+    def seen_test(self, name: str) -> ObjectViews:
+        """The test views of ``name`` where a model trained on it is tested (see :attr:`seen_test_q`)."""
+        return self.seen_test_q.get(name, self.test_q[name])
+
 
 def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bool = True,
-                 manifest: Manifest | None = None, test: bool = True) -> StudyData:
+                 manifest: Manifest | None = None, test: bool = True, bop_root: str = "") -> StudyData:
     """Render (or load) references and queries of ``objects`` (default: all).
 
-    ``test=False`` skips the test and occluded queries (what training alone needs).
+    ``test=False`` skips the test and occluded queries (what training alone needs). ``bop_root``: real LineMOD
+    and LineMOD-O instead of the rendered benchmark (:func:`prepare_real_data`).
 
     Training and validation queries are rendered only for benchmark (``train``
     role) objects; test and occluded queries use the test background photos.
     """
+    if bop_root:
+        return prepare_real_data(cfg, bop_root, objects, occluded, test)
     m = manifest or load_manifest()
     names = objects or m.object_names()
     bench = set(m.object_names("train"))
@@ -84,6 +96,59 @@ def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bo
     for (kind, n, _), vs in zip(plan, sets):
         getattr(data, kind)[n] = vs
     return data
+
+
+def study_manifest(bop_root: str = "") -> Manifest:
+    """The objects a study runs on: the rendered benchmark's manifest, or (``bop_root``) real LineMOD's 13 objects
+    with the symmetries its ``models_info.json`` declares (:func:`helpers.data.linemod_bop.bop_manifest`)."""
+    return bop_manifest(bop_folders(bop_root)["lm"], "lm") if bop_root else load_manifest()
+
+
+def prepare_real_data(cfg: DataConfig, bop_root: str, objects: list[str] | None = None, occluded: bool = True,
+                      test: bool = True) -> StudyData:
+    """The paper's real data: LineMOD (``<bop_root>/lm``) and LineMOD-O (``<bop_root>/lmo``) in BOP format.
+
+    Objects, splits and symmetries: :func:`helpers.data.linemod_bop.bop_manifest` (the 13 objects, role
+    ``train``, no held-out objects). References: ``cfg.n_references`` renders of each object's mesh, as for the
+    rendered benchmark (the clean views of the curriculum too). Queries: real crops (:mod:`helpers.data.linemod_real`),
+    one object's views separated by :func:`helpers.data.linemod_bop.partition_views`: ``test_q`` = ALL views
+    (an unseen object is tested on all of them), ``seen_test_q`` = every tenth view (the paper's 10 % seen test
+    split), ``val_q`` = ``cfg.n_val_queries`` others (model selection), ``train_q`` = the rest, with context.
+    ``n_train_queries`` and ``n_test_queries`` cap the training and test views per object (spread evenly over
+    the sorted views); ``occluded_q``: LineMOD-O's views of its eight objects (capped like the test views).
+    """
+    folders = bop_folders(bop_root)
+    m = study_manifest(bop_root)
+    names = objects or m.object_names()
+    rc = cfg.render_config()
+    plan = [("refs", n, ViewSetSpec(n, "reference", cfg.n_references, cfg.seed, rc)) for n in names]
+    plan += [("clean_q", n, ViewSetSpec(n, "reference", cfg.n_train_queries, cfg.seed + 1000, rc)) for n in names]
+    sets = render_sets([p[2] for p in plan], cache=cfg.cache_dir or None, workers=cfg.workers, manifest=m)
+    data = StudyData(cfg, m)
+    for (kind, n, _), vs in zip(plan, sets):
+        getattr(data, kind)[n] = vs
+    cache = cfg.cache_dir or None
+    for n in names:
+        views = real_views(folders["lm"], "lm", n, cfg.image_size, 1.0, cache)
+        part = partition_views(len(views), cfg.n_val_queries)
+        wide = real_views(folders["lm"], "lm", n, cfg.image_size, cfg.train_context, cache)
+        data.train_q[n] = _views_at(wide, part["train"][spread(len(part["train"]), cfg.n_train_queries)])
+        data.val_q[n] = _views_at(views, part["val"])
+        if test:
+            data.test_q[n] = _views_at(views, spread(len(views), cfg.n_test_queries))
+            data.seen_test_q[n] = _views_at(views, part["test"][spread(len(part["test"]), cfg.n_test_queries)])
+        if test and occluded and object_id(n) in LMO_OBJECT_IDS:
+            occ = real_views(folders["lmo"], "lmo", n, cfg.image_size, 1.0, cache)
+            data.occluded_q[n] = _views_at(occ, spread(len(occ), cfg.n_test_queries))
+    return data
+
+
+def _views_at(views: ObjectViews, idx: np.ndarray) -> ObjectViews:
+    """``views.subset(idx)`` keyed by the selection too (training run folders hash the keys of their sets)."""
+    out = views.subset(idx)
+    out.meta["key"] = f"{views.meta['key']}-{stable_hash([int(i) for i in idx], 8)}"
+    out.meta["instances"] = [views.meta["instances"][int(i)] for i in idx]
+    return out
 
 
 def first(views: ObjectViews, k: int) -> ObjectViews:

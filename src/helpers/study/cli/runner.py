@@ -33,15 +33,27 @@ from ..provenance import git_revision
 from ..report import build_report
 
 PRESET_DIR = REPO_ROOT / "presets"
-PRESETS = ("smoke", "quick", "long", "paper")  # "standard" (180-step models) retired once the quick preset read the zoo
+PRESETS = ("smoke", "quick", "long", "paper", "real-lm")  # "standard" (180-step models) retired once the quick preset read the zoo
 STATE_FILE = "runner_state.json"
 COMMON = "common.yaml"  # parameters a preset's notebooks share
+NOTEBOOK_LIST = "notebooks.yaml"  # the notebooks a preset runs, where not all (real-lm: those of real data)
 HEARTBEAT_S = 30.0  # how often a running notebook's elapsed time is saved (lost on a kill: at most this much)
 
 
 def notebooks() -> list[str]:
     """Notebook names in run order (file name order)."""
     return sorted(p.stem for p in NOTEBOOK_DIR.glob("[0-9][0-9]_*.ipynb"))
+
+
+def preset_notebooks(preset: str) -> list[str]:
+    """The notebooks ``preset`` runs, in run order: those its ``notebooks.yaml`` lists, else all."""
+    f, names = PRESET_DIR / preset / NOTEBOOK_LIST, notebooks()
+    if not f.exists():
+        return names
+    listed = yaml.safe_load(f.read_text())
+    if not isinstance(listed, list) or not listed or not set(listed) <= set(names):
+        raise ParameterError(f"{f}: expected a non-empty list of notebook names among {names}, got {listed!r}")
+    return [n for n in names if n in listed]
 
 
 def _read_preset_file(f: Path) -> dict:
@@ -109,7 +121,7 @@ def run(preset: str, only: list[str] | None = None, html: bool = True, report: b
     cache, so the interrupted notebook itself resumes from its last checkpoint. Two
     runners writing the same report folder take turns (its lock); runners with different
     report folders share the cache safely (every cache entry has its own lock)."""
-    names = notebooks()
+    names = preset_notebooks(preset)
     if only is not None:
         if not only:
             raise ParameterError(f"--only: name at least one notebook; available: {names}")

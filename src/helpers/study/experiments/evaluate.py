@@ -70,8 +70,11 @@ def _calibration(claims: dict[str, dict]) -> list[str]:
     return out
 
 
-def _held_out_line(h: dict, claim: dict | None) -> list[str]:
-    """The held-out objects' line of section 3: model, Rota. Acc. with its interval where the claim has one."""
+def _held_out_line(h: dict | None, claim: dict | None) -> list[str]:
+    """The held-out objects' line of section 3: model, Rota. Acc. with its interval where the claim has one
+    (nothing on real LineMOD, which has no held-out objects)."""
+    if h is None:
+        return []
     ci = "" if claim is None or claim["ci95"] is None else f" [{claim['ci95'][0]:.1f}, {claim['ci95'][1]:.1f}]"
     model = h.get("model", UNNAMED_MODEL)
     return [f"- held-out objects (never trained on, retrieved among all objects; {model}): Rota. Acc. "
