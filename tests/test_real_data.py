@@ -117,7 +117,7 @@ def test_spread_picks_evenly_and_all_when_asked():
 #: Per notebook: what the real-data run changes beyond bop_root (fewer ablation variants keep the suite short).
 NOTEBOOK_RUNS = {"01_render": {}, "02_train": {}, "03_evaluate": {}, "04_ablation_scales": {"variants": ["global", "32,16,13"]},
                  "05_ablation_fusion": {"variants": ["avg", "adaptive"], "n_seeds": 1, "seeded_variants": ["adaptive"]},
-                 "06_reference_count": {}, "07_fast_vs_greedy": {}, "08_components": {}}
+                 "06_reference_count": {}, "07_fast_vs_greedy": {}, "08_components": {}, "10_explore": {}}
 
 
 @pytest.fixture(scope="module")
@@ -133,8 +133,8 @@ def real_reports(tmp_path_factory):
 @pytest.mark.slow
 @pytest.mark.parametrize("nb", list(NOTEBOOK_RUNS))
 def test_notebooks_run_on_real_data_through_bop_root(nb, bop_root, real_cache, real_reports, tmp_path):
-    """Each notebook of Table 1, the ablations, the reference count and fast-vs-greedy, end to end with
-    ``bop_root`` (its smoke parameters otherwise): a real LineMOD / LineMOD-O pair takes the same path."""
+    """Each notebook of Table 1, the ablations, the reference count and fast-vs-greedy, and the explorer, end to
+    end with ``bop_root`` (its smoke parameters otherwise): a real LineMOD / LineMOD-O pair takes the same path."""
     import papermill as pm
 
     from helpers.study.parameters import NOTEBOOK_DIR
@@ -154,6 +154,8 @@ def test_notebooks_run_on_real_data_through_bop_root(nb, bop_root, real_cache, r
         assert m["held_out"] is None and [r["split"] for r in m["table1"]] == ["#1", "#2", "#3", "mean"]
         assert all(0 <= r["occluded unseen rot_acc"] <= 100 for r in m["table1"])
         assert not (out / "per_query_held_out.csv").exists()
+    if nb == "10_explore":  # no held-out objects: bring-your-own answers the split's first unseen object
+        assert json.loads((out / "byo.json").read_text())["object"] == "ape"
 
 
 @pytest.mark.slow
