@@ -169,3 +169,16 @@ def test_the_report_of_real_data_runs_builds_and_says_so(real_reports):
     assert "on real LineMOD / LineMOD-O photographs in BOP format" in report and "held-out objects" not in report
     claims = {c["id"]: c for c in json.loads((real_reports / "real-lm" / "claims.json").read_text())}
     assert "unseen_rot_acc" in claims and "held_out_rot_acc" not in claims
+
+
+def test_a_smaller_sample_of_real_views_is_spread_over_the_scenes(bop_root):
+    from helpers.study.pipeline import cap_test_queries, first, prepare_data
+
+    cfg = DataConfig(n_references=8, n_train_queries=100, n_val_queries=3, n_test_queries=100, workers=0,
+                     cache_dir=str(bop_root / "cache"))
+    data = prepare_data(cfg, bop_root=str(bop_root))
+    views = data.test_q["ape"]
+    assert [i[1] for i in first(views, 3).meta["instances"]] == [0, 10, 19]  # spread, not images 0, 1, 2
+    capped = cap_test_queries(data, 4)
+    assert len(capped.test_q["ape"]) == 4 and len(capped.seen_test_q["ape"]) == 2
+    assert first(views, 3).meta["key"] != views.meta["key"]  # a smaller sample is another set

@@ -78,8 +78,8 @@ def real_views(root: str | os.PathLike, dataset: str, name: str, size: int, cont
     Returns:
         ObjectViews(kind="query"): images (N, C, C, 3) uint8, masks (N, C, C) bool (visible object), rotations
         (N, 3, 3) float32 ``R_m2c``, the object's symmetries from ``models_info.json``, and meta with
-        ``key`` (the cache key, which training run keys include) and ``instances`` [(scene_id, im_id, gt_index)]
-        in sorted order.
+        ``key`` (the cache key, which training run keys include), ``instances`` [(scene_id, im_id, gt_index)]
+        in sorted order and ``sorted_views`` (a sample of them is taken spread evenly).
     """
     if dataset not in DATASETS:
         raise ValueError(f"real_views: dataset must be one of {sorted(DATASETS)}, got {dataset!r}")
@@ -106,6 +106,7 @@ def real_views(root: str | os.PathLike, dataset: str, name: str, size: int, cont
     return ObjectViews(name, arrays["images"], np.asarray(arrays["rotations"]), arrays["masks"], kind="query",
                        symmetries=infos[oid].exact_symmetries,
                        meta={"key": f"real-{dataset}-{key}", "source": f"BOP {dataset}", "obj_id": oid,
+                             "sorted_views": True,  # in scene and image order: subsample evenly, not the first k
                              "box": box, "context": context, "instances": [tuple(i) for i in meta["instances"]]})
 
 

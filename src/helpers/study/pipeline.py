@@ -152,18 +152,22 @@ def _views_at(views: ObjectViews, idx: np.ndarray) -> ObjectViews:
 
 
 def first(views: ObjectViews, k: int) -> ObjectViews:
-    """The first ``k`` views (0 = all): a smaller, still random, sample of a query set."""
-    return views if not k or k >= len(views) else views.subset(np.arange(k))
+    """The first ``k`` views (0 = all): a smaller, still random, sample of a rendered query set. Real views come
+    sorted by scene and image (neighbours nearly alike), so ``k`` of them are taken spread evenly instead."""
+    if not k or k >= len(views):
+        return views
+    return _views_at(views, spread(len(views), k)) if views.meta.get("sorted_views") else views.subset(np.arange(k))
 
 
 def cap_test_queries(data: StudyData, k: int) -> StudyData:
-    """``data`` with only the first ``k`` test queries per object (0: all); the other sets are
-    shared. The first k of a rendered set are themselves a random sample (rotations and
+    """``data`` with only the first ``k`` test queries per object (0: all; real data: of the seen objects' test
+    views too); the other sets are shared. The first k of a rendered set are themselves a random sample (rotations and
     backgrounds are drawn independently per query), so a notebook can evaluate fewer queries
     than notebook 01 rendered for the ablations."""
     if not k:
         return data
-    return replace(data, test_q={n: first(v, k) for n, v in data.test_q.items()})
+    return replace(data, test_q={n: first(v, k) for n, v in data.test_q.items()},
+                   seen_test_q={n: first(v, k) for n, v in data.seen_test_q.items()})
 
 
 # ------------------------------------------------------------------ training
