@@ -89,12 +89,18 @@ def test_wrong_folders_and_missing_entries_are_named(bop_root, tmp_path):
         bop_folders(tmp_path / "nowhere")
     part = tmp_path / "only_lm"
     shutil.copytree(bop_root / "lm", part / "lm")
+    assert set(bop_folders(part)) == {"lm"}  # LineMOD-O is optional: the occluded part is then left out
+    (part / "lmo").mkdir()
     with pytest.raises(BOPFormatError, match=r"lmo/models: folder does not exist"):
         bop_folders(part)
+    (part / "lmo").rmdir()
+    with pytest.raises(BOPFormatError, match=r"lm/test: folder does not exist"):
+        shutil.rmtree(part / "lm" / "test")
+        bop_folders(part)
     with pytest.raises(ValueError, match="not one of the paper's LineMOD objects"):
-        real_views(part / "lm", "lm", "bowl", 64)
+        real_views(bop_root / "lm", "lm", "bowl", 64)
     with pytest.raises(BOPFormatError, match="object 2 \\(benchvise\\) is not listed"):
-        real_views(part / "lm", "lm", "benchvise", 64)
+        real_views(bop_root / "lm", "lm", "benchvise", 64)
 
 
 def test_notebook_parameters_refuse_real_data_with_the_zoo_or_a_bad_folder(bop_root, tmp_path):
@@ -182,3 +188,20 @@ def test_a_smaller_sample_of_real_views_is_spread_over_the_scenes(bop_root):
     capped = cap_test_queries(data, 4)
     assert len(capped.test_q["ape"]) == 4 and len(capped.seen_test_q["ape"]) == 2
     assert first(views, 3).meta["key"] != views.meta["key"]  # a smaller sample is another set
+
+
+def test_without_linemod_o_the_occluded_part_is_left_out(bop_root, tmp_path):
+    from helpers.core.configs import GREEDY
+    from helpers.evaluation.baselines import HogModel
+    from helpers.study.pipeline import prepare_data
+    from helpers.study.protocols.linemod import evaluate_split, table1
+
+    only_lm = tmp_path / "only_lm"
+    shutil.copytree(bop_root / "lm", only_lm / "lm")
+    cfg = DataConfig(n_references=8, n_train_queries=8, n_val_queries=3, n_test_queries=4, workers=0,
+                     cache_dir=str(bop_root / "cache"))
+    data = prepare_data(cfg, bop_root=str(only_lm))
+    assert data.occluded_q == {} and len(data.test_q["ape"]) == 4
+    r = evaluate_split(HogModel(), data, 1, GREEDY, device="cpu")
+    assert "occluded" not in r and {"unseen", "seen"} <= set(r)
+    assert table1({1: r})["occluded unseen rot_acc"].isna().all()

@@ -34,7 +34,8 @@ _ARRAYS = ("images", "masks", "rotations")
 
 
 def bop_folders(bop_root: str | os.PathLike) -> dict[str, Path]:
-    """{"lm": <bop_root>/lm, "lmo": <bop_root>/lmo}, each checked to hold ``models/`` and its test folder.
+    """{"lm": <bop_root>/lm, "lmo": <bop_root>/lmo}, each checked to hold ``models/`` and its test folder;
+    ``lmo`` only where that folder exists (without it, the occluded part of the evaluation is left out).
     A relative ``bop_root`` is read from the repository root (as every notebook path parameter).
 
     Raises :class:`helpers.data.bop.BOPFormatError` naming the folder and the layout expected.
@@ -42,15 +43,18 @@ def bop_folders(bop_root: str | os.PathLike) -> dict[str, Path]:
     root = repo_path(bop_root)
     if not root.is_dir():
         raise BOPFormatError(f"bop_root {root}: not a folder (expected a folder of BOP data sets holding lm/ "
-                             "(LineMOD) and lmo/ (LineMOD-Occluded), as the BOP toolkit lays them out)")
+                             "(LineMOD) and, for the occluded part, lmo/ (LineMOD-Occluded), as the BOP toolkit "
+                             "lays them out)")
     out = {}
     for name, spec in DATASETS.items():
         d = root / name
+        if name != "lm" and not d.exists():
+            continue
         for need in ("models", spec["split"]):
             if not (d / need).is_dir():
-                raise BOPFormatError(f"{d / need}: folder does not exist (bop_root {root} must hold lm/ and lmo/ "
-                                     f"in the BOP layout: <dataset>/models/models_info.json, obj_XXXXXX.ply and "
-                                     f"<dataset>/{spec['split']}/<scene>/...)")
+                raise BOPFormatError(f"{d / need}: folder does not exist (bop_root {root} must hold lm/ and may "
+                                     f"hold lmo/, in the BOP layout: <dataset>/models/models_info.json, "
+                                     f"obj_XXXXXX.ply and <dataset>/{spec['split']}/<scene>/...)")
         out[name] = d.resolve()
     return out
 

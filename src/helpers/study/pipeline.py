@@ -115,7 +115,8 @@ def prepare_real_data(cfg: DataConfig, bop_root: str, objects: list[str] | None 
     (an unseen object is tested on all of them), ``seen_test_q`` = every tenth view (the paper's 10 % seen test
     split), ``val_q`` = ``cfg.n_val_queries`` others (model selection), ``train_q`` = the rest, with context.
     ``n_train_queries`` and ``n_test_queries`` cap the training and test views per object (spread evenly over
-    the sorted views); ``occluded_q``: LineMOD-O's views of its eight objects (capped like the test views).
+    the sorted views); ``occluded_q``: LineMOD-O's views of its eight objects (capped like the test views; none
+    without ``<bop_root>/lmo``).
     """
     folders = bop_folders(bop_root)
     m = study_manifest(bop_root)
@@ -137,7 +138,7 @@ def prepare_real_data(cfg: DataConfig, bop_root: str, objects: list[str] | None 
         if test:
             data.test_q[n] = _views_at(views, spread(len(views), cfg.n_test_queries))
             data.seen_test_q[n] = _views_at(views, part["test"][spread(len(part["test"]), cfg.n_test_queries)])
-        if test and occluded and object_id(n) in LMO_OBJECT_IDS:
+        if test and occluded and "lmo" in folders and object_id(n) in LMO_OBJECT_IDS:
             occ = real_views(folders["lmo"], "lmo", n, cfg.image_size, 1.0, cache)
             data.occluded_q[n] = _views_at(occ, spread(len(occ), cfg.n_test_queries))
     return data
