@@ -200,7 +200,7 @@ def check_values(notebook: str, P: dict[str, Any]) -> None:
         v = P.get(name)  # coarse-to-fine candidates (07): chosen among on held-out views of seen objects
         if v is not None and ((not v and not may_be_empty) or len(set(v)) != len(v) or any(x < 1 for x in v)):
             raise _err(notebook, name, f"a list of distinct ints >= 1{' (empty: skip)' if may_be_empty else ''}", v)
-    if P.get("bop_root"):
+    if P.get("bop_root") and "bop_split" not in P:  # 09's bop_root is one T-LESS folder, read with its bop_split
         _check_bop_root(notebook, P)
     if P.get("report_dir") and not repo_path(P["report_dir"]).is_dir():
         raise _err(notebook, "report_dir", "'' or an existing report folder (relative paths from the repository "
