@@ -17,7 +17,7 @@ from .base import Experiment
 
 def check(notebook: str, P: dict[str, Any]) -> None:
     """The held-out objects' model, where named: a zoo model or checkpoint of the crop size."""
-    if P["held_out_model"]:
+    if P.get("held_out_model"):  # callers may check a few values alone (e.g. zoo_steps)
         check_model_choice(notebook, "held_out_model", P["held_out_model"], P["image_size"])
 
 
