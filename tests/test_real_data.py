@@ -205,3 +205,21 @@ def test_without_linemod_o_the_occluded_part_is_left_out(bop_root, tmp_path):
     r = evaluate_split(HogModel(), data, 1, GREEDY, device="cpu")
     assert "occluded" not in r and {"unseen", "seen"} <= set(r)
     assert table1({1: r})["occluded unseen rot_acc"].isna().all()
+
+
+def test_one_process_renders_the_benchmark_and_real_data_apart_in_process_and_in_workers(bop_root, tmp_path):
+    """The rendering side follows the manifest it is handed: the benchmark's duck and LineMOD's duck (here the
+    stand-in for id 9, bread) in one process are two meshes, and worker processes get a real data set's manifest
+    itself (it is built from its folder, not read from a file)."""
+    from helpers.data.datasets import ViewSetSpec, render_sets
+    from helpers.data.linemod_bop import bop_manifest
+    from helpers.data.manifest import load_manifest
+
+    rc = DataConfig(workers=0).render_config()
+    bench, real = load_manifest(), bop_manifest(bop_folders(bop_root)["lm"])
+    a = render_sets([ViewSetSpec("duck", "reference", 2, 0, rc)], cache=tmp_path, workers=0, manifest=bench)[0]
+    b = render_sets([ViewSetSpec("duck", "reference", 2, 0, rc)], cache=tmp_path, workers=0, manifest=real)[0]
+    assert a.meta["key"] != b.meta["key"] and not np.array_equal(a.images, b.images)
+    c = render_sets([ViewSetSpec("ape", "reference", 2, 0, rc)], cache=tmp_path / "w", workers=2, manifest=real)[0]
+    d = render_sets([ViewSetSpec("ape", "reference", 2, 0, rc)], cache=tmp_path / "i", workers=0, manifest=real)[0]
+    assert np.array_equal(c.images, d.images)  # the benchmark's duck, as LineMOD's ape, alike in workers

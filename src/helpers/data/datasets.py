@@ -129,13 +129,19 @@ CHUNK = 128
 _W: dict = {}
 
 
-def _worker_init(manifest_path: str, lp_threads: int | None) -> None:
+def _worker_init(manifest: Manifest, lp_threads: int | None) -> None:
     if lp_threads:
         # llvmpipe would otherwise start one thread per core in every worker.
         os.environ.setdefault("LP_NUM_THREADS", str(lp_threads))
-    _W["manifest"] = load_manifest(manifest_path)
-    _W["objects"] = {}
-    _W["backgrounds"] = {}
+    _use_manifest(manifest)
+
+
+def _use_manifest(manifest: Manifest) -> None:
+    """Render this manifest's objects from now on in this process. The manifest itself is handed over (not its
+    path): a real data set's manifest is built from its folder, not read from a file."""
+    if _W.get("manifest") is not manifest:
+        _W["manifest"] = manifest
+        _W["backgrounds"] = {}
 
 
 def background_photos(manifest: Manifest, split: str) -> dict[str, np.ndarray]:
@@ -161,9 +167,10 @@ def _render_chunk(spec: ViewSetSpec, out_dir: str, chunk_idx: int) -> int:
     """Render views [chunk_idx*CHUNK, ...) of ``spec`` into ``chunk_XXXXX.npz``."""
     manifest = _W.get("manifest") or load_manifest()
     objs = _W.setdefault("objects", {})
-    if spec.object not in objs:
-        objs[spec.object] = load_object(spec.object, manifest)
-    obj = objs[spec.object]
+    key = (spec.object, manifest.object(spec.object).mesh.sha256)  # two manifests may share a name ("duck")
+    if key not in objs:
+        objs[key] = load_object(spec.object, manifest)
+    obj = objs[key]
     R = spec.rotations()
     lo, hi = chunk_idx * CHUNK, min(spec.n, (chunk_idx + 1) * CHUNK)
     S = spec.side()
@@ -304,12 +311,12 @@ def _render_chunks(todo: list[tuple[ViewSetSpec, Path, int]], workers: int, mani
         ctx = mp.get_context("spawn")
         lp = max(1, (os.cpu_count() or 2) // workers)
         with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init,
-                                    initargs=(str(manifest.path), lp)) as ex:
+                                    initargs=(manifest, lp)) as ex:
             futs = [ex.submit(_render_chunk, s, str(d), c) for s, d, c in todo]
             for f in cf.as_completed(futs):
                 bar.update(f.result())
     else:
-        _W.setdefault("manifest", manifest)
+        _use_manifest(manifest)
         for s, d, c in todo:
             bar.update(_render_chunk(s, str(d), c))
     bar.close()
