@@ -165,34 +165,32 @@ def export_linemod_like(root: str | os.PathLike, objects: dict[str, int], n_view
     style, photos = query_style("linemod"), background_photos(m, "test")
     K, rng = cfg.intrinsics(), np.random.default_rng([seed, 4242])
     meshes = {name: load_object(name, m) for name in objects}
-    lmo_views: list[tuple[str, tuple]] = []
+    lmo_views: list[tuple] = []
     for name, oid in objects.items():
         obj = meshes[name]
-        scene, cams, gts, infos = root / "lm" / "test" / f"{oid:06d}", {}, {}, {}
-        for i in range(n_views + (n_occluded if oid in LMO_OBJECT_IDS else 0)):
+        views = []
+        for _ in range(n_views + (n_occluded if oid in LMO_OBJECT_IDS else 0)):
             color, depth, full, vis, vp = render_tabletop(obj, cfg, style, photos, rng)
             t_mm = [0.0, 0.0, float(cfg.distance_diameters * obj.diameter * 1000.0)]
-            pose = {"cam_R_m2c": vp.R_m2c.reshape(-1).tolist(), "cam_t_m2c": t_mm, "obj_id": oid}
-            if i >= n_views:
-                lmo_views.append((name, (color, depth, full, vis, pose)))
-                continue
-            infos[str(i)] = [_write_frame(scene, i, color, depth, full, vis)]
-            cams[str(i)] = {"cam_K": K.reshape(-1).tolist(), "depth_scale": DEPTH_SCALE}
-            gts[str(i)] = [pose]
-        _write_scene(scene, cams, gts, infos)
-    scene, cams, gts, infos = root / "lmo" / "test" / f"{2:06d}", {}, {}, {}
-    for i, (name, (color, depth, full, vis, pose)) in enumerate(lmo_views):
-        infos[str(i)] = [_write_frame(scene, i, color, depth, full, vis)]
-        cams[str(i)] = {"cam_K": K.reshape(-1).tolist(), "depth_scale": DEPTH_SCALE}
-        gts[str(i)] = [pose]
-    _write_scene(scene, cams, gts, infos)
+            views.append((color, depth, full, vis,
+                          {"cam_R_m2c": vp.R_m2c.reshape(-1).tolist(), "cam_t_m2c": t_mm, "obj_id": oid}))
+        _write_scene(root / "lm" / "test" / f"{oid:06d}", views[:n_views], K)
+        lmo_views += views[n_views:]
+    _write_scene(root / "lmo" / "test" / f"{2:06d}", lmo_views, K)
     for ds, ids in (("lm", objects), ("lmo", {n: i for n, i in objects.items() if i in LMO_OBJECT_IDS})):
         _write_lm_models(root / ds / "models", {i: meshes[n] for n, i in ids.items()}, m)
     return root
 
 
-def _write_scene(scene: Path, cams: dict, gts: dict, infos: dict) -> None:
+def _write_scene(scene: Path, views: list[tuple], K: np.ndarray) -> None:
+    """One BOP scene: each view (colour, depth m, full mask, visible mask, its scene_gt pose) as image ``i``, then
+    scene_camera.json, scene_gt.json and scene_gt_info.json."""
     scene.mkdir(parents=True, exist_ok=True)
+    cams, gts, infos = {}, {}, {}
+    for i, (color, depth, full, vis, pose) in enumerate(views):
+        infos[str(i)] = [_write_frame(scene, i, color, depth, full, vis)]
+        cams[str(i)] = {"cam_K": K.reshape(-1).tolist(), "depth_scale": DEPTH_SCALE}
+        gts[str(i)] = [pose]
     for fname, data in (("scene_camera.json", cams), ("scene_gt.json", gts), ("scene_gt_info.json", infos)):
         atomic_write_text(scene / fname, json.dumps(data, indent=1))
 

@@ -94,15 +94,15 @@ def real_views(root: str | os.PathLike, dataset: str, name: str, size: int, cont
         raise BOPFormatError(f"{root / 'models' / 'models_info.json'}: object {oid} ({name}) is not listed")
     split, box = DATASETS[dataset]["split"], DATASETS[dataset]["box"]
     side = int(round(size * context))
-    insts = list(iter_scene_instances(root, split, [oid]))
-    if not insts:
-        raise BOPFormatError(f"{root / split}: no annotated instance of object {oid} ({name})")
     key = stable_hash({"v": CROP_VERSION, "dataset": dataset, "obj_id": oid, "side": side, "context": context,
                        "box": box, "annotations": _annotation_sums(root, split)})
     d = cache_dir(cache) / "real" / dataset / f"{name}-{key}"
     if not (d / "meta.json").exists():
         with entry_lock(d, f"real crops {dataset}/{name}"):
-            if not (d / "meta.json").exists():
+            if not (d / "meta.json").exists():  # the instances are listed only to build (cached: from meta)
+                insts = list(iter_scene_instances(root, split, [oid]))
+                if not insts:
+                    raise BOPFormatError(f"{root / split}: no annotated instance of object {oid} ({name})")
                 _build(d, insts, side, context, box, f"{dataset} {name}", progress)
     settle(d)
     meta = read_json(d / "meta.json")

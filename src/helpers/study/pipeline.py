@@ -119,7 +119,7 @@ def prepare_real_data(cfg: DataConfig, bop_root: str, objects: list[str] | None 
     without ``<bop_root>/lmo``).
     """
     folders = bop_folders(bop_root)
-    m = study_manifest(bop_root)
+    m = bop_manifest(folders["lm"], "lm")
     names = objects or m.object_names()
     rc = cfg.render_config()
     plan = [("refs", n, ViewSetSpec(n, "reference", cfg.n_references, cfg.seed, rc)) for n in names]
