@@ -98,3 +98,13 @@ def test_the_readme_headline_is_the_committed_claims():
 
 def test_readme_stays_short():
     assert len((REPO_ROOT / "README.md").read_text().splitlines()) <= 150
+
+
+def test_notebook_14_checks_its_validation_extras():
+    P = {"image_size": 64, "split": 1, "baseline": ["split1", "split1-seed1"], "arms": [], "extra_val_objects": 25,
+         "extra_val_references": 8, "extra_val_queries": 2}
+    with pytest.raises(ParameterError, match="'extra_val_objects' expects an int in 1..24"):
+        check_values("14_extra_objects", P)
+    with pytest.raises(ParameterError, match="'extra_val_queries' expects an int >= 1"):
+        check_values("14_extra_objects", {**P, "extra_val_objects": 24, "extra_val_queries": 0})
+    check_values("14_extra_objects", {**P, "extra_val_objects": 24})  # valid: no error

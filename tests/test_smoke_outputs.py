@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
 from helpers.core.paths import REPO_ROOT
 from helpers.data.manifest import load_manifest
@@ -217,3 +218,16 @@ def test_training_screens(session_start):
     assert deciding["seed_spread_pts"] is not None  # two seeds on each side: the spread enters the verdict
     assert ids["screen_unseen:avg-fusion_beats_current"]["verdict"] == "measured"  # reported, never a decision
     assert (d / "screens.png").stat().st_size > 0 and (d / "afterwards.csv").exists()
+
+
+def test_extra_objects(session_start):
+    d = _fresh("14_extra_objects", session_start)
+    m = _json(d / "metrics.json")
+    assert {"table", "trend", "curve", "counts", "validation_objects", "afterwards", "models"} <= set(m), sorted(m)
+    assert m["counts"]["current"] == 0 and [r["N extra objects"] for r in m["curve"]] == sorted(m["counts"].values())
+    extras = set(yaml.safe_load((REPO_ROOT / m["extras_file"]).read_text())["validation"])
+    assert m["validation_objects"] and set(m["validation_objects"]) <= extras  # never a benchmark object
+    for row in m["curve"]:
+        assert _pct(row["validation rot_acc"]) and row["validation ci95 lo"] <= row["validation rot_acc"]
+        assert _pct(row["unseen test rot_acc"])
+    assert (d / "extra_objects.png").stat().st_size > 0 and (d / "curve.csv").exists()

@@ -46,14 +46,11 @@ def render(names: list[str], recipes: str, workers: int) -> None:
     sys.path.insert(0, str(REPO / "src"))
     from dataclasses import replace
 
-    from helpers.data.manifest import load_manifest
     from helpers.study import zoo
-    from helpers.study.pipeline import prepare_data
 
-    m = load_manifest()
     for name in names:
         r = zoo.recipe(name, path=recipes)
-        prepare_data(replace(r.data, workers=workers), objects=m.seen_objects(r.split), occluded=False, test=False)
+        zoo.recipe_data(replace(r, data=replace(r.data, workers=workers)))  # extra objects too
 
 
 def train_all(names: list[str], recipes: str, deadline: float, threads: int, out: Path) -> dict[str, int | None]:

@@ -296,6 +296,26 @@ def curves_figure(curves: dict, path: str | os.PathLike, title: str) -> Path:
     return save(fig, path)
 
 
+def extra_objects_figure(curve: pd.DataFrame, path: str | os.PathLike, split: int) -> Path:
+    """Rota. Acc. against N extra training objects, with 95 % intervals: the validation extras (deciding) and the
+    split's unseen test objects (afterwards, dashed). N on a symlog axis (N = 0 is a point of the curve)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 3.4))
+    for col, style, what in (("validation", "o-", "validation extras (decides)"),
+                             ("unseen test", "s--", f"split #{split} unseen test (afterwards)")):
+        y = pd.to_numeric(curve[f"{col} rot_acc"], errors="coerce")
+        if y.isna().all():
+            continue
+        lo, hi = (pd.to_numeric(curve[f"{col} ci95 {b}"], errors="coerce") for b in ("lo", "hi"))
+        ax.errorbar(curve["N extra objects"], y, yerr=[y - lo, hi - y], fmt=style, capsize=3, label=what)
+    ax.set_xscale("symlog", linthresh=10)
+    ax.set(xlabel="extra training objects N", ylabel="Rota. Acc. (%)",
+           title=f"Extra training objects, split #{split} (not in the paper)")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2))
+    ax.grid(alpha=0.3)
+    return save(fig, path)
+
+
 def waterfall_figure(table, path: str | os.PathLike, title: str) -> Path:
     """The gap account as a waterfall: the first step's Rota. Acc. as a bar, each later step as a floating bar
     of its paired change (green up, red down) with the change's 95 % interval, a hatched bar for what is not

@@ -50,6 +50,9 @@ class StudyData:
     #: Real data only: a SEEN object's test views (its every tenth view), where ``test_q`` holds all its views
     #: (what it is tested on where it is unseen). Rendered benchmark: empty, ``test_q`` serves both.
     seen_test_q: dict[str, ObjectViews] = field(default_factory=dict)
+    #: Extra training objects (issue #44, screen e; :func:`helpers.study.extra_data.add_extra_objects`): trained on
+    #: beside the split's seen objects, never validated or tested on. Empty: none.
+    extra: list[str] = field(default_factory=list)
 
     def key(self, name: str, kind: str = "refs") -> str:
         return getattr(self, kind)[name].meta["key"]
@@ -57,6 +60,10 @@ class StudyData:
     def seen_test(self, name: str) -> ObjectViews:
         """The test views of ``name`` where a model trained on it is tested (see :attr:`seen_test_q`)."""
         return self.seen_test_q.get(name, self.test_q[name])
+
+    def training_objects(self, split: int) -> list[str]:
+        """What a model of ``split`` trains on: the split's seen benchmark objects, then the extra objects."""
+        return self.manifest.seen_objects(split) + list(self.extra)
 
 
 def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bool = True,
@@ -198,7 +205,7 @@ def train_or_load(split: int, train_cfg: Any, data: StudyData, val_refs_per_obje
         DamagedEntry: a checkpoint of the finished run does not match its checksum
             (the message names the file and how to recover).
     """
-    seen = data.manifest.seen_objects(split)
+    seen = data.training_objects(split)
     missing = [n for n in seen if n not in data.train_q]
     if missing:
         raise ValueError(f"train_or_load: no training queries rendered for {missing}; prepare_data with them")
@@ -281,14 +288,16 @@ def _train_run(split: int, train_cfg: Any, data: StudyData, val_refs_per_object:
         for stray in run.glob(".*.tmp"):  # a killed writer's (this process holds the run's lock)
             stray.unlink(missing_ok=True)
     t0 = time.perf_counter()
+    val = [n for n in seen if n not in data.extra]  # validation: the benchmark's seen objects only
     res = train(train_cfg, {n: data.refs[n] for n in seen}, {n: data.train_q[n] for n in seen},
-                {n: val_refs_subset(data.refs[n], val_refs_per_object) for n in seen},
-                {n: data.val_q[n] for n in seen}, run, resume=True,
+                {n: val_refs_subset(data.refs[n], val_refs_per_object) for n in val},
+                {n: data.val_q[n] for n in val}, run, resume=True,
                 clean_queries={n: data.clean_q[n] for n in seen} if curriculum else None)
     rank, _ = distributed_world()
     if rank == 0:
         atomic_write_json(run / "done.json", {
-            "split": split, "seen": seen, "seconds_this_session": time.perf_counter() - t0,
+            "split": split, "seen": val, **({"extra": len(data.extra)} if data.extra else {}),
+            "seconds_this_session": time.perf_counter() - t0,
             "best": "best.pt", "train_images_per_s": res.train_images_per_s, "processes": world,
             "sha256": {f: sha256_file(run / f) for f in ("best.pt", "last.pt")}, "made_by": made_by(),
             "finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
@@ -303,12 +312,12 @@ def run_folder(split: int, train_cfg: Any, data: StudyData, val_refs_per_object:
     training config (precision resolved), the split and the render keys of every set it uses."""
     if hasattr(train_cfg, "resolved"):  # "auto" precision keys the run by what it means on this machine
         train_cfg = train_cfg.resolved()
-    seen = data.manifest.seen_objects(split)
+    seen, objs = data.manifest.seen_objects(split), data.training_objects(split)
     curriculum = bool(getattr(train_cfg, "clean_steps", 0))
     key = stable_hash({"split": split, "train": _train_key(train_cfg),
-                       "refs": [data.key(n) for n in seen], "train_q": [data.key(n, "train_q") for n in seen],
+                       "refs": [data.key(n) for n in objs], "train_q": [data.key(n, "train_q") for n in objs],
                        "val_q": [data.key(n, "val_q") for n in seen], "val_refs": val_refs_per_object,
-                       **({"clean_q": [data.key(n, "clean_q") for n in seen]} if curriculum else {})})
+                       **({"clean_q": [data.key(n, "clean_q") for n in objs]} if curriculum else {})})
     return cache_dir(data.cfg.cache_dir or None) / "runs" / f"split{split}-{key}"
 
 

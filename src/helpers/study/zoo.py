@@ -24,7 +24,7 @@ import numpy as np
 import torch
 import yaml
 
-from ..core.configs import LATER_DEFAULTS, DataConfig, ModelConfig, TrainConfig
+from ..core.configs import LATER_DEFAULTS, DataConfig, ExtraConfig, ModelConfig, TrainConfig
 from ..core.device import resolve_device
 from ..core.fileio import atomic_write_bytes, atomic_write_json, atomic_write_text, read_json, sha256_file
 from ..core.paths import REPO_ROOT
@@ -33,6 +33,7 @@ from ..data.manifest import load_manifest
 from ..net.model import OrientationNet, images_to_tensor
 from ..training.train import read_checkpoint
 from ..training.validation import plot_history, validate
+from .extra_data import add_extra_objects
 from .pipeline import check_run, prepare_data, run_folder, run_lock, train_or_load, val_refs_subset
 from .provenance import device_info, git_revision, package_versions
 
@@ -44,13 +45,18 @@ CHECK_QUERIES, CHECK_REFS = 2, 12
 
 @dataclass(frozen=True)
 class Recipe:
-    """How one zoo model is trained: its data, training configuration and split (0 = all objects)."""
+    """How one zoo model is trained: its data, training configuration, split (0 = all objects) and the extra
+    training objects beside the split's seen ones (issue #44, screen e; ``extra.n == 0``: none)."""
 
     name: str
     split: int
     data: DataConfig
     train: TrainConfig
     val_refs: int
+    extra: ExtraConfig = ExtraConfig()
+    #: The recipe changes the shared data or adds extra objects (a screen's arm): notebooks name its model,
+    #: :func:`find` never picks it for a training configuration (it would match on the network and training alone).
+    by_name_only: bool = False
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -67,18 +73,22 @@ def recipes(path: str | Path = RECIPES, cache_dir: str = "", device: str = "auto
     for name, over in (spec.get("models") or {}).items():
         try:
             over = dict(over or {})
+            by_name_only = "data" in over or bool((over.get("extra") or {}).get("n"))
             split = int(over.pop("split"))
             if split not in (0, 1, 2, 3):
                 raise ValueError(f"split: expected 0 (all objects), 1, 2 or 3, got {split}")
             data = DataConfig(**{**spec["data"], **over.pop("data", {}), "cache_dir": cache_dir})
             model = ModelConfig.from_dict(_merge({"image_size": data.image_size}, over.pop("model", {})))
             train = _merge(spec["train"], over.pop("train", {}))
+            extra = ExtraConfig(**over.pop("extra", {}))
             if over:
                 raise ValueError(f"unknown keys {sorted(over)}")
             tcfg = TrainConfig.from_dict({**train, "model": model.to_dict(), "device": device})
+            if extra.n and tcfg.symmetry_aware:  # the training extras carry no symmetry declarations
+                raise ValueError("extra objects with symmetry_aware training: the extras' symmetries are not declared")
         except (KeyError, TypeError, ValueError) as e:
             raise ValueError(f"{path}: model {name!r}: {e}") from None
-        out[name] = Recipe(name, split, data, tcfg, int(spec.get("val_refs", 256)))
+        out[name] = Recipe(name, split, data, tcfg, int(spec.get("val_refs", 256)), extra, by_name_only)
     return out
 
 
@@ -114,7 +124,7 @@ def _cpuinfo_lines() -> list[str]:
 def train_recipe(r: Recipe, zoo_dir: Path = ZOO_DIR) -> tuple[OrientationNet, Path, dict, Any]:
     """Train (or resume, or load the finished run of) recipe ``r``; returns
     (model, run folder, info of :func:`train_or_load`, StudyData)."""
-    data = prepare_data(r.data, objects=load_manifest().seen_objects(r.split), occluded=False, test=False)
+    data = recipe_data(r)
     run = run_folder(r.split, r.train, data, r.val_refs)
     committed = _checkpoint_path(r.name, zoo_dir)
     with run_lock(run):  # held through training (train_or_load takes it again)
@@ -127,6 +137,13 @@ def train_recipe(r: Recipe, zoo_dir: Path = ZOO_DIR) -> tuple[OrientationNet, Pa
             _record_session(r, run)
         model, run, info = train_or_load(r.split, r.train, data, val_refs_per_object=r.val_refs)
     return model, run, info, data
+
+
+def recipe_data(r: Recipe) -> Any:
+    """The StudyData recipe ``r`` trains on: the split's seen objects (references, training, validation and clean
+    views), plus its extra objects."""
+    data = prepare_data(r.data, objects=load_manifest().seen_objects(r.split), occluded=False, test=False)
+    return add_extra_objects(data, r.extra)
 
 
 def _record_session(r: Recipe, run: Path) -> None:
@@ -249,6 +266,8 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
         "file": wfile.name, "sha256": sha256_file(wfile), "bytes": wfile.stat().st_size, "dtype": "float16",
         "history": f"{r.name}.history.json", "curve": f"{r.name}.curve.png", "check": f"{r.name}.check.npz",
         "split": r.split, "seen_objects": seen, "data": data_cfg, "val_refs_per_object": r.val_refs,
+        **({"extra": {**asdict(r.extra), "objects_file": "data_extra_objects.yaml"}} if r.extra.n else {}),
+        **({"by_name_only": True} if r.by_name_only else {}),
         "train": {k: v for k, v in cfg.items() if k not in ("device", "progress", "num_threads")},
         "steps": int(last["global_step"]), "best_epoch": int(best["epoch"]),
         "best_step": int(best["epoch"]) * steps_per_epoch, "seed": int(cfg["seed"]),
@@ -306,7 +325,7 @@ class _PlainDumper(yaml.SafeDumper):
 def snapshot(r: Recipe, zoo_dir: Path = ZOO_DIR) -> Path:
     """Copy the run's last.pt (optimizer and RNG state included) to ``models/checkpoints/<name>.last.pt``
     so that an unfinished training resumes from it in a later session or on another machine."""
-    data = prepare_data(r.data, objects=load_manifest().seen_objects(r.split), occluded=False, test=False)
+    data = recipe_data(r)
     src = run_folder(r.split, r.train, data, r.val_refs) / "last.pt"
     if not src.exists():
         raise FileNotFoundError(f"zoo snapshot {r.name}: no {src} (has its training started?)")
@@ -395,13 +414,14 @@ _VARIANT_FIELDS = ("seed", "weighted_loss", "occlusion", "random_ref", "symmetry
 
 def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR, steps: int = 0) -> str:
     """Name of the zoo model trained on ``split`` with ``train_cfg``'s architecture and variant
-    switches (seed, loss, occlusion, random reference, symmetry-aware training, augmentation); the budget is the zoo's, not ``train_cfg``'s:
+    switches (seed, loss, occlusion, random reference, symmetry-aware training, augmentation), never one of a
+    screen's models that changed the data (``by_name_only``); the budget is the zoo's, not ``train_cfg``'s:
     ``steps`` optimiser steps, or (0) the shortest budget the zoo has for it (4,000 steps; every ablation
     variant has that one). ValueError listing what the zoo has when none matches."""
     want = ModelConfig.from_dict(train_cfg.model.to_dict()).to_dict()
     zoo = entries(zoo_dir)
     found = {name: int(e["steps"]) for name, e in zoo.items()
-             if e["split"] == split and ModelConfig.from_dict(e["train"]["model"]).to_dict() == want
+             if e["split"] == split and not e.get("by_name_only") and ModelConfig.from_dict(e["train"]["model"]).to_dict() == want
              and all(e["train"].get(f, LATER_DEFAULTS.get(f)) == getattr(train_cfg, f) for f in _VARIANT_FIELDS)
              and e["train"].get("augment", train_cfg.augment.to_dict()) == train_cfg.augment.to_dict()}
     if found and steps:

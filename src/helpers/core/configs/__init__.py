@@ -5,7 +5,7 @@ step below takes them, never the parameter dict. All are plain dataclasses that 
 ``to_dict``/``asdict`` (checkpoints, run folders, presets).
 
 * :class:`RenderConfig`, :class:`QueryStyle` (+ the named styles): how views are rendered and cropped.
-* :class:`DataConfig`: sizes of the rendered benchmark.
+* :class:`DataConfig`: sizes of the rendered benchmark; :class:`ExtraConfig`: extra training objects.
 * :class:`ModelConfig` (+ level geometry): the network's architecture switches.
 * :class:`AugmentConfig`, :class:`TrainConfig`: query augmentation and training.
 * :class:`SearchConfig` (+ :func:`paper_ratio_search`, the paper's budget ratios): retrieval;
@@ -13,13 +13,13 @@ step below takes them, never the parameter dict. All are plain dataclasses that 
 * :class:`TlessConfig`: sizes of the T-LESS-like set.
 """
 
-from .data import QUERY_STYLES, SCENES, DataConfig, QueryStyle, RenderConfig, TlessConfig
+from .data import QUERY_STYLES, SCENES, DataConfig, ExtraConfig, QueryStyle, RenderConfig, TlessConfig
 from .model import FUSIONS, LEVELS, ModelConfig, level_shapes, parse_scales
 from .search import (GREEDY, PAPER_ANCHOR_RATIO, PAPER_FPS_RATIO, PAPER_K_AC, PAPER_N_REFS, SCHEDULES, SEARCH_METHODS, HogConfig, SearchConfig,
                      paper_ratio_search)
 from .train import LATER_DEFAULTS, LR_SCHEDULES, RANDOM_REF, SELECT_ON, AugmentConfig, TrainConfig
 
-__all__ = ["QUERY_STYLES", "SCENES", "DataConfig", "QueryStyle", "RenderConfig", "TlessConfig",
+__all__ = ["QUERY_STYLES", "SCENES", "DataConfig", "ExtraConfig", "QueryStyle", "RenderConfig", "TlessConfig",
            "FUSIONS", "LEVELS", "ModelConfig", "level_shapes", "parse_scales",
            "GREEDY", "PAPER_ANCHOR_RATIO", "PAPER_FPS_RATIO", "SCHEDULES", "SEARCH_METHODS", "HogConfig",
            "SearchConfig", "paper_ratio_search", "LATER_DEFAULTS", "PAPER_N_REFS", "PAPER_K_AC",

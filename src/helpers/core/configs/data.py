@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import _choice
+from ._checks import _choice, _ints
 
 
 @dataclass(frozen=True)
@@ -166,6 +166,28 @@ class DataConfig:
     def render_config(self) -> RenderConfig:
         """The renderer's settings for these crop and render sides (pixels); the other defaults as set."""
         return RenderConfig(size=self.image_size, render_size=self.render_size)
+
+
+@dataclass(frozen=True)
+class ExtraConfig:
+    """Extra training objects (issue #44, screen e; :mod:`helpers.data.extra_objects`): fewer views per object than
+    a benchmark object gets, so that a thousand of them stay affordable to render.
+
+    Attributes:
+        n: extra training objects, the first ``n`` of the extras' training order (0: none).
+        n_references: references per extra object: the pool its positives come from (Haar-uniform, the
+            benchmark's reference seed).
+        n_train_queries: real-like training queries per extra object (with context, as the benchmark's), and as
+            many clean views for the curriculum.
+    """
+
+    n: int = 0
+    n_references: int = 256
+    n_train_queries: int = 32
+
+    def __post_init__(self) -> None:
+        _ints(self, ("n",), lo=0)
+        _ints(self, ("n_references", "n_train_queries"))
 
 
 @dataclass(frozen=True)

@@ -13,13 +13,13 @@ from pathlib import Path
 
 from ...core.fileio import atomic_write_text
 from ...evaluation.claims import StaleResults
-from . import (ablation_fusion, ablation_scales, budget, components, evaluate, explore, fast_vs_greedy, gap,
-               reference_count, render, tless, train, training_screens)
+from . import (ablation_fusion, ablation_scales, budget, components, evaluate, explore, extra_objects, fast_vs_greedy,
+               gap, reference_count, render, tless, train, training_screens)
 from .base import Experiment
 
 REGISTRY: tuple[Experiment, ...] = tuple(m.EXPERIMENT for m in (
     render, train, evaluate, ablation_scales, ablation_fusion, reference_count, fast_vs_greedy, components, tless,
-    explore, gap, training_screens, budget))
+    explore, gap, training_screens, budget, extra_objects))
 
 
 def experiment(notebook: str) -> Experiment | None:

@@ -18,6 +18,14 @@ TITLE = "Training-regime screens (issue #44; not in the paper)"
 
 def check(notebook: str, P: dict[str, Any]) -> None:
     """Baseline and arms name zoo models of the notebook's crop size and split; arm labels are distinct."""
+    check_arms(notebook, P)
+    if P["screen_queries"] < 1:
+        raise param_error(notebook, "screen_queries", "an int >= 1", P["screen_queries"])
+
+
+def check_arms(notebook: str, P: dict[str, Any]) -> None:
+    """``baseline`` and ``arms`` ([label, zoo model per seed...]) name zoo models of ``split`` at ``image_size``,
+    with distinct labels other than 'current' (notebooks 12 and 14)."""
     if not P["baseline"]:
         raise param_error(notebook, "baseline", "a non-empty list of zoo models (one per seed)", P["baseline"])
     labels = []
@@ -37,8 +45,6 @@ def check(notebook: str, P: dict[str, Any]) -> None:
         if int(zoo[name]["split"]) != P["split"]:
             raise param_error(notebook, "baseline/arms", f"zoo models trained on split {P['split']} "
                               f"({name} is split {zoo[name]['split']})", name)
-    if P["screen_queries"] < 1:
-        raise param_error(notebook, "screen_queries", "an int >= 1", P["screen_queries"])
 
 
 def section(d: Path, claims: dict[str, dict]) -> list[str]:

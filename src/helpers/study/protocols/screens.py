@@ -9,9 +9,10 @@ reported afterwards and never used to choose.
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Any
 
-from ...core.configs import LATER_DEFAULTS
+from ...core.configs import LATER_DEFAULTS, ExtraConfig
 from ...core.views import ObjectViews
 from ...data.datasets import ViewSetSpec, render_sets
 from ...data.render import query_style
@@ -54,6 +55,9 @@ def changes(trained: dict[str, list[Trained]]) -> dict[str, str]:
     entries' data and training configurations (the first seed of each)."""
     def flat(e: dict) -> dict[str, Any]:
         d = {f"data.{k}": v for k, v in e["data"].items() if k != "seed"}
+        # extra objects (entries without the key have none): every field shown at its default unless it changed
+        d.update({f"extra.{k}": v for k, v in {**asdict(ExtraConfig()), **(e.get("extra") or {})}.items()
+                  if k != "objects_file"})
         for k, v in e["train"].items():
             if k in _BOOKKEEPING:
                 continue
