@@ -308,7 +308,15 @@ def extra_objects_figure(curve: pd.DataFrame, path: str | os.PathLike, split: in
             continue
         lo, hi = (pd.to_numeric(curve[f"{col} ci95 {b}"], errors="coerce") for b in ("lo", "hi"))
         ax.errorbar(curve["N extra objects"], y, yerr=[y - lo, hi - y], fmt=style, capsize=3, label=what)
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator  # after _plt picks Agg
+
+    ns = sorted({int(n) for n in curve["N extra objects"]})
     ax.set_xscale("symlog", linthresh=10)
+    ax.xaxis.set_major_locator(FixedLocator(ns))  # one plain label per N measured (symlog's own read 5.5x10^-2)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:,.0f}"))
+    ax.xaxis.set_minor_locator(NullLocator())
+    if len(ns) == 1:
+        ax.set_xlim(ns[0] - 1, ns[0] + 10)
     ax.set(xlabel="extra training objects N", ylabel="Rota. Acc. (%)",
            title=f"Extra training objects, split #{split} (not in the paper)")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2))
