@@ -43,10 +43,10 @@ def section(d: Path, claims: dict[str, dict]) -> list[str]:
                            "it beats N = 0 on the validation extras (meshes never trained on) by more than its "
                            "interval and the seed spread")
     m = load_json(d / "metrics.json")
-    if not m or "curve" not in m:
+    if not m or not (d / "curve.csv").exists():
         return out
     out += [f"The curve ({m['measured_on']}; afterwards: {m['afterwards_measured_on']}):", "",
-            md_table(pd.DataFrame(m["curve"])), ""]
+            md_table(pd.read_csv(d / "curve.csv")), ""]  # the CSV keeps the columns in reading order
     for cid in sorted(k for k in claims if k.startswith("extra_unseen:")):
         out += claim_line(claims, cid, claims[cid]["claim"].split(" (")[0])
     return out + [""]
