@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from helpers.core.configs import ExtraConfig
-from helpers.data.extra_objects import EXTRA_FILE, build, candidate_meshes, load_extras, parse, with_extras
+from helpers.data.extra_objects import EXTRA_FILE, build, candidate_meshes, load_extras, parse, with_extras, write
 from helpers.data.manifest import ManifestError, load_manifest
 from helpers.study import zoo
 from helpers.study.protocols.extra_objects import extra_counts, extra_curve
@@ -20,7 +20,7 @@ from helpers.study.protocols.variants import Trained
 from test_zoo import TINY
 
 
-def test_the_extras_file_is_what_the_rule_writes_and_keeps_its_lists_apart():
+def test_the_extras_file_is_what_the_rule_writes_and_keeps_its_lists_apart(tmp_path):
     m = load_manifest()
     extras = load_extras()
     used = {o.mesh.path for o in m.objects}
@@ -35,6 +35,7 @@ def test_the_extras_file_is_what_the_rule_writes_and_keeps_its_lists_apart():
     assert [{k: o[k] for k in ("name", "path", "sha256", "color")} for o in raw["objects"]] == fresh["objects"]
     # Every validation mesh carries the symmetry rule's declaration; the nested training sets.
     assert all("symmetries" in o for o in raw["objects"] if o["name"] in extras.validation)
+    assert write(raw, tmp_path / "again.yaml").read_text() == EXTRA_FILE.read_text()  # header and layout too
     assert extras.first(3) == list(extras.training[:3]) and extras.first(100)[:3] == extras.first(3)
     with pytest.raises(ValueError, match="asked for 5000"):
         extras.first(5000)
@@ -87,13 +88,15 @@ def test_a_recipe_with_extra_objects_trains_on_them_and_is_published_by_name_onl
     _, run, _, data = zoo.train_recipe(r, zoo_dir=zdir)
     _, run_x, info, data_x = zoo.train_recipe(rx, zoo_dir=zdir)
     extras = load_extras()
-    assert data_x.extra == extras.first(2) and data_x.training_objects(1) == data.manifest.seen_objects(1) + data_x.extra
+    assert data_x.extra == extras.first(2)
+    assert data_x.training_objects(1) == data.manifest.seen_objects(1) + data_x.extra
     assert run_x != run and info["extra"] == 2 and info["seen"] == data.manifest.seen_objects(1)
     assert len(data_x.refs[data_x.extra[0]]) == 8 and len(data_x.train_q[data_x.extra[0]]) == 2
     zoo.publish(r, run, data, zoo_dir=zdir)
     zoo.publish(rx, run_x, data_x, zoo_dir=zdir)
     e = zoo.entry("tiny-extra", zdir)
-    assert e["extra"]["n"] == 2 and e["by_name_only"] and e["seen_objects"] == data.manifest.seen_objects(1)
+    assert e["extra"]["n"] == 2 and len(e["extra"]["objects_sha256"]) == 64 and e["by_name_only"]
+    assert e["seen_objects"] == data.manifest.seen_objects(1)  # validated on the benchmark's seen objects only
     assert zoo.find(1, r.train, zdir) == "tiny"  # same network and training: the by-name-only model is skipped
     with pytest.raises(ValueError, match="symmetry_aware"):
         bad = tmp_path / "bad.yaml"

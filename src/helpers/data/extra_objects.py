@@ -169,8 +169,8 @@ def build(n_validation: int = 24, seed: int = 0, manifest: Manifest | None = Non
 
 def write(content: dict, path: Path = EXTRA_FILE) -> Path:
     """Write the file with a header saying what it is and how it was made."""
-    head = ("# Extra training objects (issue #44, screen e): pybullet_data random_urdfs meshes that no manifest object\n"
-            "# uses. Written by `python -m helpers.data.extra_objects --write` (helpers.data.extra_objects); the\n"
+    head = ("# Extra training objects (issue #44, screen e): pybullet_data random_urdfs meshes that no manifest\n"
+            "# object uses. Written by `python -m helpers.data.extra_objects --write` (helpers.data.extra_objects); the\n"
             "# validation meshes are never trained on and carry the symmetry rule's declarations.\n")
     objects = content["objects"]
     body = {k: v for k, v in content.items() if k != "objects"}

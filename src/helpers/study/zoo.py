@@ -29,6 +29,7 @@ from ..core.device import resolve_device
 from ..core.fileio import atomic_write_bytes, atomic_write_json, atomic_write_text, read_json, sha256_file
 from ..core.paths import REPO_ROOT
 from ..core.precision import describe
+from ..data.extra_objects import EXTRA_FILE
 from ..data.manifest import load_manifest
 from ..net.model import OrientationNet, images_to_tensor
 from ..training.train import read_checkpoint
@@ -266,7 +267,9 @@ def publish(r: Recipe, run: Path, data: Any, zoo_dir: Path = ZOO_DIR) -> Path:
         "file": wfile.name, "sha256": sha256_file(wfile), "bytes": wfile.stat().st_size, "dtype": "float16",
         "history": f"{r.name}.history.json", "curve": f"{r.name}.curve.png", "check": f"{r.name}.check.npz",
         "split": r.split, "seen_objects": seen, "data": data_cfg, "val_refs_per_object": r.val_refs,
-        **({"extra": {**asdict(r.extra), "objects_file": "data_extra_objects.yaml"}} if r.extra.n else {}),
+        # the extras are the first n of the file's training order: its name and sha256 say which
+        **({"extra": {**asdict(r.extra), "objects_file": EXTRA_FILE.name, "objects_sha256": sha256_file(EXTRA_FILE)}}
+           if r.extra.n else {}),
         **({"by_name_only": True} if r.by_name_only else {}),
         "train": {k: v for k, v in cfg.items() if k not in ("device", "progress", "num_threads")},
         "steps": int(last["global_step"]), "best_epoch": int(best["epoch"]),
@@ -421,7 +424,8 @@ def find(split: int, train_cfg: TrainConfig, zoo_dir: Path = ZOO_DIR, steps: int
     want = ModelConfig.from_dict(train_cfg.model.to_dict()).to_dict()
     zoo = entries(zoo_dir)
     found = {name: int(e["steps"]) for name, e in zoo.items()
-             if e["split"] == split and not e.get("by_name_only") and ModelConfig.from_dict(e["train"]["model"]).to_dict() == want
+             if e["split"] == split and not e.get("by_name_only")
+             and ModelConfig.from_dict(e["train"]["model"]).to_dict() == want
              and all(e["train"].get(f, LATER_DEFAULTS.get(f)) == getattr(train_cfg, f) for f in _VARIANT_FIELDS)
              and e["train"].get("augment", train_cfg.augment.to_dict()) == train_cfg.augment.to_dict()}
     if found and steps:

@@ -31,7 +31,8 @@ def extra_counts(trained: dict[str, list[Trained]]) -> dict[str, int]:
     for label, ts in trained.items():
         ns = {int((t.info["zoo_entry"].get("extra") or {}).get("n", 0)) for t in ts}
         if len(ns) != 1:
-            raise ValueError(f"arms: {label}'s models were trained with different numbers of extra objects {sorted(ns)}")
+            raise ValueError(f"arms: {label}'s models were trained with different numbers of extra objects "
+                             f"{sorted(ns)}")
         out[label] = ns.pop()
     if out[CURRENT] != 0:
         raise ValueError(f"baseline: the current recipe's models have {out[CURRENT]} extra objects, expected none")

@@ -57,7 +57,7 @@ def changes(trained: dict[str, list[Trained]]) -> dict[str, str]:
         d = {f"data.{k}": v for k, v in e["data"].items() if k != "seed"}
         # extra objects (entries without the key have none): every field shown at its default unless it changed
         d.update({f"extra.{k}": v for k, v in {**asdict(ExtraConfig()), **(e.get("extra") or {})}.items()
-                  if k != "objects_file"})
+                  if k not in ("objects_file", "objects_sha256")})
         for k, v in e["train"].items():
             if k in _BOOKKEEPING:
                 continue
