@@ -26,10 +26,13 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from tqdm.auto import tqdm
 
 from ..core.fileio import atomic_write_text, sha256_file
 from ..core.paths import REPO_ROOT
 from .manifest import FileEntry, Manifest, ManifestError, ObjectEntry, load_manifest, module_dir
+from .meshes import load_object
+from .symmetry.rule import find_symmetries, manifest_block
 
 #: The committed list of extra meshes.
 EXTRA_FILE = REPO_ROOT / "data_extra_objects.yaml"
@@ -183,11 +186,6 @@ def write(content: dict, path: Path = EXTRA_FILE) -> Path:
 def _declare_symmetries(content: dict, path: Path, old: dict) -> None:
     """Run the symmetry rule on each validation mesh that ``old`` (the file as it was) does not already declare for
     the same sha256, writing the file after each mesh: an interrupted ``--write`` resumes where it stopped."""
-    from tqdm.auto import tqdm
-
-    from .meshes import load_object
-    from .symmetry.rule import find_symmetries, manifest_block
-
     m = load_manifest()
     done = {o["sha256"]: o["symmetries"] for o in old.get("objects", []) if "symmetries" in o}
     by_name = {o["name"]: o for o in content["objects"]}
