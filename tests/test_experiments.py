@@ -109,13 +109,3 @@ def test_notebook_14_checks_its_validation_extras():
         check_values("14_extra_objects", {**P, "extra_val_objects": 24, "extra_val_queries": 0})
     check_values("14_extra_objects", {**P, "extra_val_objects": 24})  # valid: no error
 
-
-def test_papermill_reads_every_parameter_of_every_notebook():
-    """papermill infers each parameter from its line (a comment holding " = " once hid one, with only a warning)."""
-    from papermill.inspection import inspect_notebook
-
-    from helpers.study.parameters import declared_parameters, notebook_path
-
-    for name in notebooks():
-        path = notebook_path(name)
-        assert set(inspect_notebook(str(path))) == set(declared_parameters(path)), name

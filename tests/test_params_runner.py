@@ -15,9 +15,8 @@ from helpers.study.cli.runner import notebooks, preset_parameters
 
 def test_every_notebook_has_a_literal_parameters_cell():
     names = notebooks()
-    assert names[:3] == ["01_render", "02_train", "03_evaluate"] and names[-2:] == ["12_training_screens",
-                                                                                   "13_budget"]
-    assert len(names) == 13
+    assert names[:3] == ["01_render", "02_train", "03_evaluate"] and names[-2:] == ["13_budget", "14_extra_objects"]
+    assert len(names) == 14
     for n in names:
         d = declared_parameters(notebook_path(n))
         assert "out_dir" in d and d["out_dir"] == f"reports/smoke/{n}"
