@@ -67,11 +67,13 @@ class StudyData:
 
 
 def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bool = True,
-                 manifest: Manifest | None = None, test: bool = True, bop_root: str = "") -> StudyData:
+                 manifest: Manifest | None = None, test: bool = True, bop_root: str = "",
+                 training: bool = True) -> StudyData:
     """Render (or load) references and queries of ``objects`` (default: all).
 
-    ``test=False`` skips the test and occluded queries (what training alone needs). ``bop_root``: real LineMOD
-    and LineMOD-O instead of the rendered benchmark (:func:`prepare_real_data`).
+    ``test=False`` skips the test and occluded queries (what training alone needs); ``training=False`` skips the
+    training, validation and clean views (what evaluating a trained model alone needs; rendered benchmark only).
+    ``bop_root``: real LineMOD and LineMOD-O instead of the rendered benchmark (:func:`prepare_real_data`).
 
     Training and validation queries are rendered only for benchmark (``train``
     role) objects; test and occluded queries use the test background photos.
@@ -88,7 +90,7 @@ def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bo
     plan: list[tuple[str, str, ViewSetSpec]] = []
     for n in names:
         plan.append(("refs", n, ViewSetSpec(n, "reference", cfg.n_references, cfg.seed, rc)))
-        if n in bench:
+        if n in bench and training:
             plan.append(("train_q", n, ViewSetSpec(n, "query", cfg.n_train_queries, cfg.seed, rc, train, "train")))
             plan.append(("val_q", n, ViewSetSpec(n, "query", cfg.n_val_queries, cfg.seed + 1, rc, plain, "train")))
             # Clean (reference-style) views at other rotations, for the clean-to-real-like curriculum.

@@ -17,15 +17,17 @@ TITLE = "Training-regime screens (issue #44; not in the paper)"
 
 
 def check(notebook: str, P: dict[str, Any]) -> None:
-    """Baseline and arms name zoo models of the notebook's crop size and split; arm labels are distinct."""
-    check_arms(notebook, P)
+    """Baseline and arms name zoo models of the split (the baseline of the notebook's crop size; an arm may take
+    another side: screen c, scored on the same views rendered at its side); arm labels are distinct."""
+    check_arms(notebook, P, arms_any_side=True)
     if P["screen_queries"] < 1:
         raise param_error(notebook, "screen_queries", "an int >= 1", P["screen_queries"])
 
 
-def check_arms(notebook: str, P: dict[str, Any]) -> None:
-    """``baseline`` and ``arms`` ([label, zoo model per seed...]) name zoo models of ``split`` at ``image_size``,
-    with distinct labels other than 'current' (notebooks 12 and 14)."""
+def check_arms(notebook: str, P: dict[str, Any], arms_any_side: bool = False) -> None:
+    """``baseline`` and ``arms`` ([label, zoo model per seed...]) name zoo models of ``split`` at ``image_size``
+    (``arms_any_side``: the arms' models at any side), with distinct labels other than 'current' (notebooks 12
+    and 14)."""
     if not P["baseline"]:
         raise param_error(notebook, "baseline", "a non-empty list of zoo models (one per seed)", P["baseline"])
     labels = []
@@ -37,8 +39,12 @@ def check_arms(notebook: str, P: dict[str, Any]) -> None:
     if len(set(labels)) != len(labels) or "current" in labels:
         raise param_error(notebook, "arms", "distinct labels other than 'current'", labels)
     zoo = zoo_entries()
-    for name in P["baseline"] + [m for a in P["arms"] for m in a[1:]]:
-        check_model_choice(notebook, "baseline/arms", name, P["image_size"])
+    # (model, the side it must take): the baseline's is the data's; an arm's may be its own (screen c)
+    named = [(n, P["image_size"]) for n in P["baseline"]]
+    named += [(n, int(zoo[n]["data"]["image_size"]) if arms_any_side and n in zoo else P["image_size"])
+              for a in P["arms"] for n in a[1:]]
+    for name, side in named:
+        check_model_choice(notebook, "baseline/arms", name, side)
         if name not in zoo:  # a checkpoint file: the screens read each model's recipe from its zoo entry
             raise param_error(notebook, "baseline/arms", f"zoo model names (their recipes are compared), among "
                               f"{sorted(zoo)}", name)

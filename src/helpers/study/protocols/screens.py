@@ -9,17 +9,19 @@ reported afterwards and never used to choose.
 
 from __future__ import annotations
 
-from dataclasses import asdict
-from typing import Any
+from dataclasses import asdict, replace
+from typing import Any, Iterable
+
+import numpy as np
 
 from ...core.configs import LATER_DEFAULTS, ExtraConfig
 from ...core.views import ObjectViews
 from ...data.datasets import ViewSetSpec, render_sets
 from ...data.render import query_style
 from ...evaluation.stats import claim, seed_spread
-from ..pipeline import StudyData
-from .variants import Trained, per_query, seed_accuracies
-from ..zoo import named_model
+from ..pipeline import StudyData, prepare_data
+from .variants import Trained, evaluate_queries, per_query, seed_accuracies
+from ..zoo import entry, named_model
 
 #: The screening views' seed is the data seed plus this (validation +1, test +2, occluded +3 are taken).
 SCREEN_SEED_OFFSET = 5
@@ -29,15 +31,17 @@ CURRENT = "current"
 _BOOKKEEPING = {"seed", "device", "progress", "num_threads", "val_batch_size", "precision", "val_every"}
 
 
-def screen_models(baseline: list[str], arms: list[list[str]], split: int, image_size: int,
+def screen_models(baseline: list[str], arms: list[list[str]], split: int,
                   device: str = "auto") -> dict[str, list[Trained]]:
     """label -> the zoo models of each seed: :data:`CURRENT` for ``baseline``, then each ``[label, model, ...]``
-    of ``arms``. ValueError when a model is trained on another split or for another number of steps."""
+    of ``arms``, each at the input side it was trained at (screen c compares sides: :func:`model_sizes`).
+    ValueError when a model is trained on another split or for another number of steps, or when one arm's seeds
+    differ in input side."""
     out: dict[str, list[Trained]] = {}
     for label, names in [(CURRENT, baseline)] + [(a[0], a[1:]) for a in arms]:
         out[label] = []
         for name in names:
-            model, path, info = named_model(name, image_size, device)
+            model, path, info = named_model(name, int(entry(name)["data"]["image_size"]), device)
             out[label].append(Trained(model, path, {"seed": info["zoo_entry"]["train"]["seed"], **info}))
     for label, ts in out.items():
         for t in ts:
@@ -47,6 +51,56 @@ def screen_models(baseline: list[str], arms: list[list[str]], split: int, image_
     steps = {t.info["zoo"]: int(t.info["zoo_entry"]["steps"]) for ts in out.values() for t in ts}
     if len(set(steps.values())) > 1:
         raise ValueError(f"arms: a screen compares equal budgets, got steps {steps}")
+    model_sizes(out)
+    return out
+
+
+def model_sizes(trained: dict[str, list[Trained]]) -> dict[str, int]:
+    """label -> the input side (px) of its models. ValueError when the seeds of one label differ."""
+    out = {}
+    for label, ts in trained.items():
+        sides = {int(t.info["zoo_entry"]["data"]["image_size"]) for t in ts}
+        if len(sides) != 1:
+            raise ValueError(f"arms: {label}'s models take different input sides {sorted(sides)} px; "
+                             f"one arm is one recipe")
+        out[label] = sides.pop()
+    return out
+
+
+def data_at_sizes(data: StudyData, sizes: Iterable[int], objects: list[str] | None = None) -> dict[int, StudyData]:
+    """side (px) -> the study's data at that input side: ``data`` itself at its own side; at another side the
+    SAME views (rotations, scenes and every random draw: each view has its own generator, seeded by the view)
+    rendered at that side, the internal render side scaled alike (96 px at 64 -> 192 at 128), references and
+    test queries of ``objects`` only (default: the benchmark's objects). A model is scored at the side it was
+    trained at, on the views every other model sees."""
+    cfg = data.cfg
+    objects = objects or data.manifest.object_names("train")
+    out = {}
+    for s in sorted(set(int(x) for x in sizes)):
+        if s == cfg.image_size:
+            out[s] = data
+            continue
+        scaled = replace(cfg, image_size=s, render_size=cfg.render_size * s // cfg.image_size)
+        out[s] = prepare_data(scaled, objects, occluded=False, manifest=data.manifest, training=False)
+    return out
+
+
+def evaluate_at_sizes(trained: dict[str, list[Trained]], datas: dict[int, StudyData],
+                      queries: dict[int, dict[str, ObjectViews]], bench: list[str],
+                      device: str = "auto") -> dict[str, list[dict]]:
+    """:func:`helpers.study.protocols.variants.evaluate_queries` of every label at its models' side, among the
+    references of ``bench`` in ``datas[side]``, on ``queries[side]`` (object -> views). ValueError when the
+    views of two sides differ in number or rotation: the comparison is paired only over the same views."""
+    sides = sorted(queries)
+    for s in sides[1:]:
+        for n, v in queries[sides[0]].items():
+            w = queries[s].get(n)
+            if w is None or len(w) != len(v) or not np.allclose(w.rotations, v.rotations, atol=1e-5):
+                raise ValueError(f"views of {n!r} at {s} px are not those at {sides[0]} px; "
+                                 f"a paired screen needs the same views at every side")
+    out: dict[str, list[dict]] = {}
+    for label, side in model_sizes(trained).items():
+        out.update(evaluate_queries({label: trained[label]}, datas[side], queries[side], bench, device=device))
     return out
 
 
