@@ -6,9 +6,10 @@ of this study's rendering packages and no network (the ``device`` tool of this w
     .venv/bin/python scripts/gpu_zoo/bundle.py attach     # right after it
 
 ``.gpu/`` (ignored by git through ``.git/info/exclude``) then holds
-  mods/<module>/...   the manifest's files of the benchmark objects and background photos, laid out as
-                      the packages that ship them (each a stub package, found by
-                      :func:`helpers.data.manifest.module_dir`; no code of those packages travels)
+  mods/<module>/...   the manifest's files of the benchmark objects and background photos, and the extra
+                      training objects' meshes (``data_extra_objects.yaml``), laid out as the packages that
+                      ship them (each a stub package, found by :func:`helpers.data.manifest.module_dir`; no
+                      code of those packages travels)
   whl/                wheels of trimesh, pyrender-maintained, PyOpenGL, freetype-py, pyglet (Python 3.12)
   gl/                 glvnd's EGL/GL loader packages (.deb; NVIDIA's driver supplies the vendor library)
   REVISION            the git commit and dirty flag of this checkout (the copy sent carries a .git of
@@ -45,6 +46,23 @@ def copy_manifest_files() -> int:
         shutil.copyfile(f.resolve(), dst)
         (OUT / "mods" / f.module / "__init__.py").touch()  # a stub package: wins over an installed one
         total += dst.stat().st_size
+    return total
+
+
+def copy_extra_meshes() -> int:
+    """Copy the meshes of the extra training objects (``data_extra_objects.yaml``, issue #44 screen e; the
+    ``screen-extra*`` recipes render them) and the material file beside each, if any; returns bytes copied.
+    All of them (about 17 MB), not only the first N a recipe takes: the bundle does not depend on the recipes."""
+    from helpers.data.extra_objects import load_extras
+
+    total = 0
+    for o in load_extras().objects.values():
+        src = o.mesh.resolve()
+        for f in [src] + [p for p in [src.with_suffix(".mtl")] if p.is_file()]:
+            dst = OUT / "mods" / o.mesh.module / Path(o.mesh.path).parent / f.name
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(f, dst)
+            total += dst.stat().st_size
     return total
 
 
@@ -99,7 +117,7 @@ def main() -> int:
         raise SystemExit(f"bundle.py: expected build, detach or attach, got {cmd!r}")
     if (OUT / "mods").exists():
         shutil.rmtree(OUT / "mods")
-    n = copy_manifest_files()
+    n = copy_manifest_files() + copy_extra_meshes()
     download()
     from helpers.study.provenance import git_revision  # src/ is on sys.path (copy_manifest_files)
 
