@@ -79,6 +79,9 @@ def prepare_data(cfg: DataConfig, objects: list[str] | None = None, occluded: bo
     role) objects; test and occluded queries use the test background photos.
     """
     if bop_root:
+        if not training:
+            raise ValueError("prepare_data(training=False): the rendered benchmark only (real data are split "
+                             "into training and test views together)")
         return prepare_real_data(cfg, bop_root, objects, occluded, test)
     m = manifest or load_manifest()
     names = objects or m.object_names()

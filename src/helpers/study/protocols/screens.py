@@ -10,7 +10,7 @@ reported afterwards and never used to choose.
 from __future__ import annotations
 
 from dataclasses import asdict, replace
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -67,22 +67,37 @@ def model_sizes(trained: dict[str, list[Trained]]) -> dict[str, int]:
     return out
 
 
-def data_at_sizes(data: StudyData, sizes: Iterable[int], objects: list[str] | None = None) -> dict[int, StudyData]:
-    """side (px) -> the study's data at that input side: ``data`` itself at its own side; at another side the
-    SAME views (rotations, scenes and every random draw: each view has its own generator, seeded by the view)
-    rendered at that side, the internal render side scaled alike (96 px at 64 -> 192 at 128), references and
-    test queries of ``objects`` only (default: the benchmark's objects). A model is scored at the side it was
-    trained at, on the views every other model sees."""
-    cfg = data.cfg
-    objects = objects or data.manifest.object_names("train")
-    out = {}
-    for s in sorted(set(int(x) for x in sizes)):
-        if s == cfg.image_size:
-            out[s] = data
-            continue
-        scaled = replace(cfg, image_size=s, render_size=cfg.render_size * s // cfg.image_size)
-        out[s] = prepare_data(scaled, objects, occluded=False, manifest=data.manifest, training=False)
+def render_sides(trained: dict[str, list[Trained]]) -> dict[int, int]:
+    """input side (px) -> the internal render side (px) its models' recipes rendered their views at. ValueError
+    when two models of one input side were trained on views of different render sides."""
+    out: dict[int, int] = {}
+    for label, ts in trained.items():
+        for t in ts:
+            d = t.info["zoo_entry"]["data"]
+            side, render = int(d["image_size"]), int(d["render_size"])
+            if out.setdefault(side, render) != render:
+                raise ValueError(f"arms: {t.info['zoo']} ({label}) renders {side} px crops from {render} px, another "
+                                 f"model of that side from {out[side]} px; one side, one set of views")
     return out
+
+
+def data_at_sizes(data: StudyData, sides: dict[int, int], objects: list[str] | None = None) -> dict[int, StudyData]:
+    """input side (px) -> the study's data at that side: ``data`` itself at its own side; at another side ``s``
+    the SAME views (rotations, scenes and every random draw: each view has its own generator, seeded by the view)
+    rendered at ``s`` from ``sides[s]`` px internal renders (:func:`render_sides`: as the models of that side were
+    trained), references and test queries of ``objects`` only (default: the benchmark's objects). A model is
+    scored at the side it was trained at, on the views every other model sees. Rendered benchmark only."""
+    cfg = data.cfg
+    if data.seen_test_q and set(sides) - {cfg.image_size}:
+        raise ValueError(f"sides {sorted(sides)} px: real photographs are cropped at {cfg.image_size} px only; "
+                         f"scoring a model at another side needs the rendered benchmark")
+    objects = objects or data.manifest.object_names("train")
+    out = {cfg.image_size: data}
+    for s, render in sorted(sides.items()):
+        if s != cfg.image_size:
+            c = replace(cfg, image_size=int(s), render_size=int(render))
+            out[s] = prepare_data(c, objects, occluded=False, manifest=data.manifest, training=False)
+    return dict(sorted(out.items()))
 
 
 def evaluate_at_sizes(trained: dict[str, list[Trained]], datas: dict[int, StudyData],
