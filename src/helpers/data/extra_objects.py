@@ -10,6 +10,8 @@ colour, and fixes two disjoint lists, both drawn with the file's seed:
   the project's symmetry rule (:mod:`helpers.data.symmetry`) and scored with.
 - ``training``: the training order; a recipe with N extra objects trains on the first N, so the sets are nested
   (N = 100 is inside N = 1,000) and a curve over N changes one thing.
+- ``excluded``: meshes in neither list because they cannot be rendered, each with the reason
+  (:func:`mesh_problem`).
 
 Training extras have no declared symmetries (the rule costs about 30 s per mesh on a 2-core CPU and the current
 recipe is symmetry-blind); a recipe that is symmetry-aware and uses extra objects is refused
@@ -21,10 +23,12 @@ from __future__ import annotations
 import argparse
 import colorsys
 import sys
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import trimesh
 import yaml
 from tqdm.auto import tqdm
 
@@ -110,6 +114,10 @@ def parse(raw: dict, path: Path, m: Manifest, require_symmetries: bool = True) -
     for i, d in enumerate(items):
         e = _entry(d, m, f"{path}: objects[{i}]")
         objects[e.name] = e
+    excluded = {str(d["name"]) for d in raw.get("excluded") or [] if isinstance(d, dict) and "name" in d}
+    if excluded & set(val + order) or excluded - set(objects):
+        raise ManifestError(f"{path}: excluded meshes must be objects of the file and in neither list "
+                            f"(in a list: {sorted(excluded & set(val + order))[:5]})")
     unknown = sorted(set(val + order) - set(objects))
     if unknown or set(val) & set(order) or len(set(order)) != len(order):
         raise ManifestError(f"{path}: validation and training must be disjoint lists of its objects "
@@ -153,9 +161,28 @@ def _colour(rng: np.random.Generator) -> list[float]:
     return [round(float(c), 3) for c in rgb]
 
 
+def mesh_problem(path: Path) -> str | None:
+    """Why the mesh file at ``path`` cannot be rendered (None when it can): no faces, a vertex that is not a
+    finite number, or no surface. pybullet_data 3.2.7 ships one such file (``random_urdfs/168/168.obj``, every
+    vertex ``nan``), which would otherwise surface mid-training as an empty silhouette."""
+    with warnings.catch_warnings():  # trimesh warns on the very meshes this function is here to reject
+        warnings.simplefilter("ignore")
+        mesh = trimesh.load(path, force="mesh", process=False, skip_materials=True)
+        v = np.asarray(mesh.vertices, dtype=np.float64)
+        if len(mesh.faces) == 0 or len(v) == 0:
+            return "no faces"
+        if not np.isfinite(v).all():
+            return f"{int((~np.isfinite(v).all(axis=1)).sum())} of {len(v)} vertices are not finite numbers"
+        if not mesh.area > 0:
+            return "zero surface area"
+    return None
+
+
 def build(n_validation: int = 24, seed: int = 0, manifest: Manifest | None = None) -> dict:
     """The file's content (without validation symmetries): every candidate mesh with its sha256 and colour, the
-    validation names and the training order, drawn with ``seed``."""
+    validation names and the training order, drawn with ``seed``, and the meshes excluded from both lists with
+    the reason (:func:`mesh_problem`). Colours and the draw cover every candidate, so excluding a mesh moves no
+    other mesh's colour and keeps the others' relative order."""
     m = manifest or load_manifest()
     paths = candidate_meshes(m)
     if not 0 < n_validation < len(paths):
@@ -165,9 +192,12 @@ def build(n_validation: int = 24, seed: int = 0, manifest: Manifest | None = Non
     objects = [{"name": f"extra_{Path(p).stem}", "path": p, "sha256": sha256_file(root / p), "color": _colour(rng)}
                for p in paths]
     order = rng.permutation(len(objects))
-    val = sorted(int(i) for i in order[:n_validation])
+    problems = {i: mesh_problem(root / p) for i, p in enumerate(paths)}
+    usable = [int(i) for i in order if problems[int(i)] is None]
+    val = sorted(usable[:n_validation])
     return {"seed": seed, "objects": objects, "validation": [objects[i]["name"] for i in val],
-            "training": [objects[int(i)]["name"] for i in order[n_validation:]]}
+            "training": [objects[i]["name"] for i in usable[n_validation:]],
+            "excluded": [{"name": objects[i]["name"], "reason": r} for i, r in problems.items() if r is not None]}
 
 
 def write(content: dict, path: Path = EXTRA_FILE) -> Path:
