@@ -10,8 +10,10 @@ import pytest
 import yaml
 
 from helpers.core.configs import ExtraConfig
-from helpers.data.extra_objects import EXTRA_FILE, build, candidate_meshes, load_extras, parse, with_extras, write
+from helpers.data.extra_objects import (EXTRA_FILE, build, candidate_meshes, load_extras, mesh_problem, parse,
+                                        with_extras, write)
 from helpers.data.manifest import ManifestError, load_manifest
+from helpers.data.meshes import load_mesh_file
 from helpers.study import zoo
 from helpers.study.protocols.extra_objects import extra_counts, extra_curve
 from helpers.study.protocols.screens import CURRENT, changes
@@ -27,11 +29,14 @@ def test_the_extras_file_is_what_the_rule_writes_and_keeps_its_lists_apart(tmp_p
     assert not used & {o.mesh.path for o in extras.objects.values()}  # no benchmark or held-out mesh
     assert set(candidate_meshes(m)) == {o.mesh.path for o in extras.objects.values()}
     assert len(extras.validation) == 24 and not set(extras.validation) & set(extras.training)
-    assert set(extras.validation) | set(extras.training) == set(extras.objects)
-    # The file is what `--write` makes from the installed package (checksums, colours, both lists).
+    assert set(extras.validation) | set(extras.training) | set(extras.excluded) == set(extras.objects)
+    # pybullet_data's one unrenderable mesh (every vertex nan) is in neither list, with its reason.
+    assert extras.excluded == {"extra_168": "35 of 35 vertices are not finite numbers"}
+    # The file is what `--write` makes from the installed package (checksums, colours, both lists, exclusions).
     raw = yaml.safe_load(EXTRA_FILE.read_text())
     fresh = build(len(extras.validation), extras.seed, m)
     assert fresh["validation"] == raw["validation"] and fresh["training"] == raw["training"]
+    assert fresh["excluded"] == raw["excluded"]
     assert [{k: o[k] for k in ("name", "path", "sha256", "color")} for o in raw["objects"]] == fresh["objects"]
     # Every validation mesh carries the symmetry rule's declaration; the nested training sets.
     assert all("symmetries" in o for o in raw["objects"] if o["name"] in extras.validation)
@@ -57,6 +62,25 @@ def test_a_damaged_extras_file_is_refused_naming_it(tmp_path):
         parse(bad, where, m)
     with pytest.raises(ManifestError, match="does not exist"):
         load_extras(tmp_path / "missing.yaml")
+    listed = {**raw, "excluded": [{"name": raw["training"][0], "reason": "test"}]}
+    with pytest.raises(ManifestError, match="excluded meshes must be objects of the file and in neither list"):
+        parse(listed, where, m)
+
+
+def test_a_mesh_of_nan_vertices_is_refused_naming_the_file(tmp_path):
+    """A file of nan vertices loads without complaint in trimesh and would render as nothing (an empty
+    silhouette, far from its cause): it is refused on loading and kept out of the extras' lists."""
+    good = tmp_path / "good.obj"
+    good.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    bad = tmp_path / "bad.obj"
+    bad.write_text(good.read_text().replace("v 1 0 0", "v nan nan nan"))
+    flat = tmp_path / "flat.obj"
+    flat.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
+    assert mesh_problem(good) is None and load_mesh_file(good).faces.shape == (4, 3)
+    assert mesh_problem(bad) == "1 of 4 vertices are not finite numbers"
+    assert mesh_problem(flat) == "zero surface area"
+    with pytest.raises(ValueError, match=r"bad\.obj cannot be rendered: 1 of 4 vertices are not finite"):
+        load_mesh_file(bad)
 
 
 def test_extras_join_a_manifest_without_changing_its_splits():

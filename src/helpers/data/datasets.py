@@ -180,13 +180,18 @@ def _render_chunk(spec: ViewSetSpec, out_dir: str, chunk_idx: int) -> int:
     if spec.kind == "query":
         bgs = background_photos(manifest, spec.background_split)
     for i in range(lo, hi):
-        if spec.kind == "reference":
-            imgs[i - lo], masks[i - lo] = render_reference(obj, R[i], spec.render)
-            rots[i - lo] = R[i]
-        else:
-            # One generator per view: a view's pixels do not depend on chunking or workers.
-            rng = np.random.default_rng([spec.seed, _name_int(spec.object), i])
-            imgs[i - lo], masks[i - lo], rots[i - lo] = render_query(obj, R[i], spec.render, spec.style, bgs, rng)
+        try:
+            if spec.kind == "reference":
+                imgs[i - lo], masks[i - lo] = render_reference(obj, R[i], spec.render)
+                rots[i - lo] = R[i]
+            else:
+                # One generator per view: a view's pixels do not depend on chunking or workers.
+                rng = np.random.default_rng([spec.seed, _name_int(spec.object), i])
+                imgs[i - lo], masks[i - lo], rots[i - lo] = render_query(obj, R[i], spec.render, spec.style, bgs,
+                                                                         rng)
+        except ValueError as e:  # say which object and view: a worker's traceback does not
+            raise ValueError(f"object {spec.object!r}, {spec.kind} view {i} of {spec.n} (seed {spec.seed}): {e}") \
+                from None
     path = Path(out_dir) / f"chunk_{chunk_idx:05d}.npz"
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:

@@ -24,7 +24,7 @@ import argparse
 import colorsys
 import sys
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 from ..core.fileio import atomic_write_text, sha256_file
 from ..core.paths import REPO_ROOT
 from .manifest import FileEntry, Manifest, ManifestError, ObjectEntry, load_manifest, module_dir
-from .meshes import load_object
+from .meshes import load_object, mesh_defect
 from .symmetry.rule import find_symmetries, manifest_block
 
 #: The committed list of extra meshes.
@@ -56,6 +56,7 @@ class ExtraObjects:
         objects: every extra mesh as a manifest entry (role ``extra``), by name.
         validation: names kept out of training (the unseen-object validation set), in file order.
         training: names in training order (a recipe with N extras takes the first N).
+        excluded: names in neither list (meshes that cannot be rendered) -> the reason.
     """
 
     path: Path
@@ -63,6 +64,7 @@ class ExtraObjects:
     objects: dict[str, ObjectEntry]
     validation: tuple[str, ...]
     training: tuple[str, ...]
+    excluded: dict[str, str] = field(default_factory=dict)
 
     def first(self, n: int) -> list[str]:
         """The first ``n`` training extras (ValueError naming the file when it holds fewer)."""
@@ -114,10 +116,11 @@ def parse(raw: dict, path: Path, m: Manifest, require_symmetries: bool = True) -
     for i, d in enumerate(items):
         e = _entry(d, m, f"{path}: objects[{i}]")
         objects[e.name] = e
-    excluded = {str(d["name"]) for d in raw.get("excluded") or [] if isinstance(d, dict) and "name" in d}
-    if excluded & set(val + order) or excluded - set(objects):
+    excluded = {str(d["name"]): str(d.get("reason", "")) for d in raw.get("excluded") or []
+                if isinstance(d, dict) and "name" in d}
+    if set(excluded) & set(val + order) or set(excluded) - set(objects):
         raise ManifestError(f"{path}: excluded meshes must be objects of the file and in neither list "
-                            f"(in a list: {sorted(excluded & set(val + order))[:5]})")
+                            f"(in a list: {sorted(set(excluded) & set(val + order))[:5]})")
     unknown = sorted(set(val + order) - set(objects))
     if unknown or set(val) & set(order) or len(set(order)) != len(order):
         raise ManifestError(f"{path}: validation and training must be disjoint lists of its objects "
@@ -129,7 +132,7 @@ def parse(raw: dict, path: Path, m: Manifest, require_symmetries: bool = True) -
     taken = set(m.object_names())
     if taken & set(objects):
         raise ManifestError(f"{path}: names {sorted(taken & set(objects))} are data manifest objects")
-    return ExtraObjects(path, seed, objects, tuple(val), tuple(order))
+    return ExtraObjects(path, seed, objects, tuple(val), tuple(order), excluded)
 
 
 def with_extras(manifest: Manifest, extras: ExtraObjects, names: list[str]) -> Manifest:
@@ -162,20 +165,13 @@ def _colour(rng: np.random.Generator) -> list[float]:
 
 
 def mesh_problem(path: Path) -> str | None:
-    """Why the mesh file at ``path`` cannot be rendered (None when it can): no faces, a vertex that is not a
-    finite number, or no surface. pybullet_data 3.2.7 ships one such file (``random_urdfs/168/168.obj``, every
-    vertex ``nan``), which would otherwise surface mid-training as an empty silhouette."""
+    """Why the mesh file at ``path`` cannot be rendered (:func:`helpers.data.meshes.mesh_defect`; None when it
+    can), without the path, so the committed file reads the same on every machine. pybullet_data 3.2.7 ships one
+    such file (``random_urdfs/168/168.obj``, every vertex ``nan``)."""
     with warnings.catch_warnings():  # trimesh warns on the very meshes this function is here to reject
         warnings.simplefilter("ignore")
         mesh = trimesh.load(path, force="mesh", process=False, skip_materials=True)
-        v = np.asarray(mesh.vertices, dtype=np.float64)
-        if len(mesh.faces) == 0 or len(v) == 0:
-            return "no faces"
-        if not np.isfinite(v).all():
-            return f"{int((~np.isfinite(v).all(axis=1)).sum())} of {len(v)} vertices are not finite numbers"
-        if not mesh.area > 0:
-            return "zero surface area"
-    return None
+        return mesh_defect(mesh) if isinstance(mesh, trimesh.Trimesh) else "no triangles"
 
 
 def build(n_validation: int = 24, seed: int = 0, manifest: Manifest | None = None) -> dict:
@@ -242,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"extra_objects: {e}", file=sys.stderr)
         return 2
     print(f"{len(content['objects'])} extra meshes: {len(content['validation'])} for validation, "
-          f"{len(content['training'])} in training order")
+          f"{len(content['training'])} in training order, {len(content['excluded'])} excluded"
+          + "".join(f"\n  excluded {e['name']}: {e['reason']}" for e in content["excluded"]))
     if a.write:
         old = yaml.safe_load(EXTRA_FILE.read_text()) if EXTRA_FILE.exists() else {}
         _declare_symmetries(content, EXTRA_FILE, old or {})

@@ -76,7 +76,24 @@ def load_mesh_file(path: str | os.PathLike) -> trimesh.Trimesh:
         raise ValueError(f"mesh file {path} could not be read as a mesh: {e}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"mesh file {path} holds no triangles")
+    defect = mesh_defect(mesh)
+    if defect:
+        raise ValueError(f"mesh file {path} cannot be rendered: {defect}")
     return mesh
+
+
+def mesh_defect(mesh: trimesh.Trimesh) -> str | None:
+    """What makes ``mesh`` unrenderable (None when nothing does): no triangles, vertices that are not finite
+    numbers (a file of ``nan`` vertices loads without complaint and would later render as nothing), or no area."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    if len(mesh.faces) == 0 or len(v) == 0:
+        return "no triangles"
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        return f"{int(bad.sum())} of {len(v)} vertices are not finite numbers"
+    if not mesh.area > 0:
+        return "zero surface area"
+    return None
 
 
 def has_texture(mesh: trimesh.Trimesh) -> bool:
