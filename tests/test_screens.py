@@ -28,6 +28,8 @@ def test_another_side_renders_the_same_views(tmp_path):
         # Same scene and draws: the 128 px view, halved, is the 64 px view up to resampling and sensor noise.
         halved = large.images.reshape(len(large), 64, 2, 64, 2, 3).mean(axis=(2, 4))
         assert np.abs(halved - small.images.astype(float)).mean() < 6.0  # measured about 2; two views: about 42
+    # Without the afterwards part no test query is rendered at the other side (the references are all it needs).
+    assert not data_at_sizes(data, {128: 192}, ["duck"], test=False)[128].test_q
     # The tolerance is far below what two different views differ by.
     assert np.abs(data.test_q["duck"].images[0].astype(float) - data.test_q["duck"].images[1]).mean() > 20.0
 

@@ -81,12 +81,14 @@ def render_sides(trained: dict[str, list[Trained]]) -> dict[int, int]:
     return out
 
 
-def data_at_sizes(data: StudyData, sides: dict[int, int], objects: list[str] | None = None) -> dict[int, StudyData]:
+def data_at_sizes(data: StudyData, sides: dict[int, int], objects: list[str] | None = None,
+                  test: bool = True) -> dict[int, StudyData]:
     """input side (px) -> the study's data at that side: ``data`` itself at its own side; at another side ``s``
     the SAME views (rotations, scenes and every random draw: each view has its own generator, seeded by the view)
     rendered at ``s`` from ``sides[s]`` px internal renders (:func:`render_sides`: as the models of that side were
-    trained), references and test queries of ``objects`` only (default: the benchmark's objects). A model is
-    scored at the side it was trained at, on the views every other model sees. Rendered benchmark only."""
+    trained), references and (``test``) test queries of ``objects`` only (default: the benchmark's objects;
+    ``test=False`` where no test query is scored, as a screen without its afterwards part). A model is scored at
+    the side it was trained at, on the views every other model sees. Rendered benchmark only."""
     cfg = data.cfg
     if data.seen_test_q and set(sides) - {cfg.image_size}:
         raise ValueError(f"sides {sorted(sides)} px: real photographs are cropped at {cfg.image_size} px only; "
@@ -96,7 +98,7 @@ def data_at_sizes(data: StudyData, sides: dict[int, int], objects: list[str] | N
     for s, render in sorted(sides.items()):
         if s != cfg.image_size:
             c = replace(cfg, image_size=int(s), render_size=int(render))
-            out[s] = prepare_data(c, objects, occluded=False, manifest=data.manifest, training=False)
+            out[s] = prepare_data(c, objects, occluded=False, manifest=data.manifest, training=False, test=test)
     return dict(sorted(out.items()))
 
 
