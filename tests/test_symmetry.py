@@ -91,7 +91,7 @@ def test_cylinder_is_continuous():
     # fewer samples), and on an AVX512-BF16 VM 43 of 48 views passed at 180 deg (0.896); with 3,000, 0.7 deg and 46.
     import dataclasses
 
-    rule = dataclasses.replace(FAST, n_views=48, n_points=3000)
+    rule = dataclasses.replace(FAST, n_views=48, n_points=SymmetryRule().n_points)
     res = find_symmetries(_obj(trimesh.creation.cylinder(radius=0.3, height=1.0, sections=64), "cyl"), rule)
     assert len(res.axes) == 1
     assert abs(abs(res.axes[0][2]) - 1.0) < 0.02  # about the cylinder's own axis
