@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from ...core.configs import GREEDY, PAPER_K_AC, PAPER_N_REFS, SearchConfig
+from ...core.paths import cache_dir
 from ...core.rotations import haar_uniform
 from ...evaluation import paper
 from ...evaluation.baselines import HogModel
@@ -27,6 +28,7 @@ from ...evaluation.metrics import Record, per_query_table, summarise_queries
 from ...search.fps import anchor_coverage_deg
 from ...search.retrieval import search_all
 from ..pipeline import StudyData, encode_queries, evaluate, first, reference_bank
+from .eval_cache import cached_evaluate
 
 
 PARTS = ("unseen", "seen", "occluded")
@@ -37,12 +39,14 @@ def evaluate_split(model: Any, data: StudyData, split: int, search: SearchConfig
     """Unseen / seen / occluded-unseen results of one split's model.
 
     ``seen_queries`` / ``occluded_queries`` cap the queries per object of those parts (0: all); ``parts``
-    chooses which of :data:`PARTS` are evaluated. Returns {"model", "bank", <part>: :func:`evaluate` dict}.
+    chooses which of :data:`PARTS` are evaluated. Each part's per-query table is kept in the cache's ``evals/``
+    (:func:`helpers.study.protocols.eval_cache.cached_evaluate`), so a model another notebook scored on the same
+    queries, references and search is read back, without timings. Returns {"model", <part>: evaluate's dict}.
     """
     if not parts or set(parts) - set(PARTS):
         raise ValueError(f"evaluate_split: parts must be some of {PARTS}, got {parts!r}")
     m = data.manifest
-    bank = reference_bank(model, data, m.object_names("train"), device=device, k_ac=search.k_ac)
+    bench = m.object_names("train")
     unseen, seen = m.split_objects(split), m.seen_objects(split)
     queries = {"unseen": lambda: {n: data.test_q[n] for n in unseen},
                "seen": lambda: {n: first(data.seen_test(n), seen_queries) for n in seen},
@@ -50,9 +54,10 @@ def evaluate_split(model: Any, data: StudyData, split: int, search: SearchConfig
                "occluded": lambda: {n: first(data.occluded_q[n], occluded_queries) for n in unseen
                                     if n in data.occluded_q}}
     asked = {p: queries[p]() for p in PARTS if p in parts}
+    folder = cache_dir(data.cfg.cache_dir or None) / "evals"
     # real LineMOD without its LineMOD-O folder has no occluded views: that part is left out, not scored on nothing
-    return {"model": model, "bank": bank,
-            **{p: evaluate(model, bank, q, search, device) for p, q in asked.items() if q or p != "occluded"}}
+    return {"model": model, **{p: cached_evaluate(model, data, bench, q, search, folder, device=device)
+                               for p, q in asked.items() if q or p != "occluded"}}
 
 
 def split_tables(results: dict[int, dict]) -> tuple[pd.DataFrame, pd.DataFrame]:

@@ -40,14 +40,13 @@ import numpy as np
 import pandas as pd
 
 from ...core.configs import GREEDY, parse_scales
-from ...core.fileio import atomic_write_json, atomic_write_text, stable_hash, write_table
+from ...core.fileio import atomic_write_json, write_table
 from ...core.paths import cache_dir
 from ...core.views import ObjectViews
-from ...evaluation.metrics import summarise_queries
 from ...evaluation.stats import accuracy_ci, seed_mean
-from ...search.features import model_fingerprint
-from ..pipeline import StudyData, evaluate, reference_bank
+from ..pipeline import StudyData
 from ..zoo import model_for
+from .eval_cache import cached_evaluate
 
 NOISE_NOTE = ("claims compare object-averaged Rota. Acc. of two variants on the same queries; ci is a paired "
               "bootstrap 95 % interval (queries resampled within objects) of the difference of accuracies averaged "
@@ -143,16 +142,6 @@ def _evals_dir(t: Trained, data: StudyData) -> Path:
     return run / "evals" if run.is_dir() else cache_dir(data.cfg.cache_dir) / "evals"
 
 
-def _eval_cache_key(t: Trained, data: StudyData, bench: list[str], queries: dict, eval_refs: int) -> str:
-    # The symmetries the errors are scored under are part of the key: a table scored before an object's
-    # symmetries were declared (or changed) is not reused.
-    entries = {n: data.manifest.object(n) for n in queries}
-    sym = {n: [e.symmetries, e.symmetry_axes] for n, e in entries.items()}
-    return stable_hash({"model": model_fingerprint(t.model), "bank": [data.key(n) for n in bench],
-                        "eval_refs": eval_refs, "queries": {n: [v.meta.get("key"), len(v)] for n, v in queries.items()},
-                        "method": "greedy", "threshold_deg": 30.0, "symmetries": sym, "columns": "R_est,R_gt"})
-
-
 def evaluate_unseen(trained: dict[str, Any], data: StudyData, split: int, eval_refs: int = 0,
                     device: str = "auto") -> dict[str, list[dict]]:
     """Greedy retrieval of split ``split``'s unseen test queries among the 13 benchmark objects,
@@ -174,19 +163,8 @@ def evaluate_queries(trained: dict[str, Any], data: StudyData, queries: dict[str
     Returns label -> [result per seed] (each with "per_query", "per_object", "means")."""
     out: dict[str, list[dict]] = {}
     for label, ts in trained.items():
-        out[label] = []
-        for t in _as_list(ts):
-            f = _evals_dir(t, data) / f"{_eval_cache_key(t, data, bench, queries, eval_refs)}.csv"
-            if f.exists():
-                pq = pd.read_csv(f)
-                per_object, means = summarise_queries(pq)
-                out[label].append({"per_query": pq, "per_object": per_object, "means": means, "cached": str(f)})
-                continue
-            bank = reference_bank(t.model, data, bench, device=device, n_refs=eval_refs or None)
-            r = evaluate(t.model, bank, queries, GREEDY, device)
-            f.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(f, r["per_query"].to_csv(index=False))
-            out[label].append(r)
+        out[label] = [cached_evaluate(t.model, data, bench, queries, GREEDY, _evals_dir(t, data), eval_refs, device)
+                      for t in _as_list(ts)]
     return out
 
 
