@@ -42,24 +42,26 @@ def test_an_experiment_checks_its_own_parameters():
     check_values(Path("01_render").name, {"n_references": 4})
 
 
-def test_the_committed_quick_report_is_rebuilt_identically(tmp_path):
+@pytest.mark.parametrize("preset", ["quick", "screens"])
+def test_the_committed_report_is_rebuilt_identically(tmp_path, preset):
     """The claims and the report are a function of the committed result files: rebuilding them from
-    reports/quick gives the committed claims.json and REPORT.md (but the line naming the assembling commit)."""
+    reports/<preset> gives the committed claims.json and REPORT.md (but the line naming the assembling commit)."""
     import shutil
 
+    from helpers.study.cli.runner import preset_notebooks
     from helpers.study.report import build_report
 
-    src = REPO_ROOT / "reports" / "quick"
+    src = REPO_ROOT / "reports" / preset
     if not (src / "claims.json").exists():
-        pytest.skip("no committed quick report")
-    shutil.copytree(src, tmp_path / "quick", ignore=shutil.ignore_patterns("*.ipynb", "*.html", "*.png"))
-    build_report("quick", root=tmp_path)
-    assert (tmp_path / "quick" / "claims.json").read_text() == (src / "claims.json").read_text()
+        pytest.skip(f"no committed {preset} report")
+    shutil.copytree(src, tmp_path / preset, ignore=shutil.ignore_patterns("*.ipynb", "*.html", "*.png"))
+    build_report(preset, root=tmp_path, notebooks=preset_notebooks(preset))
+    assert (tmp_path / preset / "claims.json").read_text() == (src / "claims.json").read_text()
 
     def body(p: Path) -> list[str]:
         return [ln for ln in p.read_text().splitlines() if not ln.startswith("- notebooks ran at")]
 
-    assert body(tmp_path / "quick" / "REPORT.md") == body(src / "REPORT.md")
+    assert body(tmp_path / preset / "REPORT.md") == body(src / "REPORT.md")
 
 
 def _screens(**over):
@@ -85,15 +87,16 @@ def test_the_screens_check_their_models(over, message):
 
 
 def test_the_readme_headline_is_the_committed_claims():
-    """README.md's headline block is generated from reports/quick/claims.json: no number in it can go stale."""
-    import json
+    """README.md's headline block is generated from reports/quick and reports/screens claims.json: no number in it
+    can go stale, and the screens' verdicts are in it."""
+    from helpers.study.cli.readme import README, block, current_block, load_claims
 
-    from helpers.study.cli.readme import CLAIMS, README, block, current_block
-
-    assert current_block(README.read_text()) == block(json.loads(CLAIMS.read_text())), \
-        "README headline differs from reports/quick/claims.json: run `.venv/bin/python -m helpers.study.cli.readme`"
-    lines = block(json.loads(CLAIMS.read_text())).splitlines()
+    claims = load_claims()
+    assert current_block(README.read_text()) == block(claims), \
+        "README headline differs from the reports' claims.json: run `.venv/bin/python -m helpers.study.cli.readme`"
+    lines = block(claims).splitlines()
     assert len(lines) > 10 and all(ln.startswith("- ") for ln in lines[1:-1])
+    assert any("12_training_screens" in ln for ln in lines) and any("14_extra_objects" in ln for ln in lines)
 
 
 def test_readme_stays_short():

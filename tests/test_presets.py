@@ -28,7 +28,7 @@ def _params(preset: str) -> dict[str, dict]:
 def _disagreements(P: dict[str, dict], notebooks: tuple[str, ...], keys: tuple[str, ...]) -> dict:
     out = {}
     for k in keys:
-        vals = {nb: P[nb][k] for nb in notebooks if k in P[nb]}
+        vals = {nb: P[nb][k] for nb in notebooks if k in P.get(nb, {})}
         if len(set(map(repr, vals.values()))) > 1:
             out[k] = vals
     return out
@@ -82,7 +82,7 @@ def test_the_real_data_preset_runs_the_notebooks_of_real_data_only(tmp_path, mon
     """real-lm lists its notebooks (01-08); every one reads bop_root and trains here (the zoo's models know
     the rendered benchmark only); a bad list is an error naming the file."""
     names = runner.preset_notebooks("real-lm")
-    assert names == list(BENCHMARK) and runner.preset_notebooks("quick") == runner.notebooks()
+    assert names == list(BENCHMARK) and runner.preset_notebooks("long") == runner.notebooks()
     for nb in names:
         P = runner.preset_parameters("real-lm", nb)
         assert P["bop_root"] == "data/bop" and P.get("models", "train") == "train" and not P.get("held_out_model")
@@ -91,3 +91,16 @@ def test_the_real_data_preset_runs_the_notebooks_of_real_data_only(tmp_path, mon
     (tmp_path / "real-lm" / runner.NOTEBOOK_LIST).write_text("- 01_render\n- 99_nothing\n")
     with pytest.raises(ParameterError, match="notebooks.yaml: expected a non-empty list of notebook names"):
         runner.preset_notebooks("real-lm")
+
+
+def test_the_screens_are_their_own_job_on_the_quick_benchmark():
+    """quick runs the study and screens the training-regime screens (12, 14): every notebook once between them,
+    and the screens' shared parameters are quick's, so they score on the same rendered views and references."""
+    quick, screens = runner.preset_notebooks("quick"), runner.preset_notebooks("screens")
+    assert screens == ["12_training_screens", "14_extra_objects"]
+    assert sorted(quick + screens) == runner.notebooks()
+
+    def common(p: str) -> dict:
+        return yaml.safe_load((runner.PRESET_DIR / p / runner.COMMON).read_text())
+
+    assert common("screens") == common("quick")

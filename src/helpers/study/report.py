@@ -47,8 +47,9 @@ def _intro(base: Path) -> str:
             "object; ours come from rendered real-like queries and a CPU budget, so **compare trends, not values**.")
 
 
-def build_report(preset: str, root: Path | None = None) -> Path:
-    """Write REPORT.md for ``preset``; sections for notebooks that did not run say so."""
+def build_report(preset: str, root: Path | None = None, notebooks: list[str] | None = None) -> Path:
+    """Write REPORT.md (and claims.json) for ``preset``: a section per notebook of ``notebooks`` (the preset's,
+    :func:`helpers.study.cli.runner.preset_notebooks`; None: every notebook), saying so where it did not run."""
     base = (root or REPO_ROOT / "reports") / preset
     lines: list[str] = [f"# Study report — preset `{preset}`", ""]
     lines += [_intro(base), ""]
@@ -58,7 +59,7 @@ def build_report(preset: str, root: Path | None = None) -> Path:
     head = _provenance(base)
     body: list[str] = []
     for e in REGISTRY:
-        if e.section is None:
+        if e.section is None or (notebooks is not None and e.notebook not in notebooks):
             continue
         sub = e.notebook
         try:
@@ -104,7 +105,8 @@ def _provenance(base: Path) -> list[str]:
            f"this file was assembled from their output files at `{built.get('commit')}`"
            f"{' (uncommitted changes)' if built.get('dirty') else ''}",
            f"- device `{dev.get('resolved')}` ({dev.get('cpu_count')} CPUs, torch threads {dev.get('torch_threads')}"
-           f"{', GPU ' + dev['gpu'] if dev.get('gpu') else ''}){fusion_impl}; GL `{gl}`",
+           f"{', GPU ' + dev['gpu'] if dev.get('gpu') else ''}){fusion_impl}; "
+           + (f"GL `{gl}`" if gl else "no GL context in the notebook processes (renders cached or made in worker processes)"),
            "- packages: " + ", ".join(f"{k} {v}" for k, v in (r.get("packages") or {}).items() if v),
            f"- seed {r.get('seed')}; each notebook's parameters are in `<notebook>/run.json`", ""]
     rex = _load(base / "reexecuted.json")

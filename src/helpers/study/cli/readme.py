@@ -1,7 +1,8 @@
-"""The README's headline block, written from a report's ``claims.json`` so its numbers cannot go stale.
+"""The README's headline block, written from the reports' ``claims.json`` so its numbers cannot go stale.
 
 ``python -m helpers.study.cli.readme [--check]`` rewrites (or checks) the block between the markers in README.md from
-``reports/quick/claims.json``; ``tests/test_experiments.py`` fails when they differ. Each experiment names the
+``reports/quick/claims.json`` and ``reports/screens/claims.json`` (the training-regime screens, their own job);
+``tests/test_experiments.py`` fails when they differ. Each experiment names the
 claims it puts in the headline (:attr:`helpers.study.experiments.base.Experiment.headline`).
 """
 
@@ -17,8 +18,10 @@ from ...core.paths import REPO_ROOT
 from ..experiments import REGISTRY
 
 README = REPO_ROOT / "README.md"
-CLAIMS = REPO_ROOT / "reports" / "quick" / "claims.json"
-BEGIN = "<!-- headline: written by `python -m helpers.study.cli.readme` from reports/quick/claims.json; do not edit -->"
+#: The claims the headline is written from: the quick study's, then the screens' (a missing file adds none).
+CLAIMS = (REPO_ROOT / "reports" / "quick" / "claims.json", REPO_ROOT / "reports" / "screens" / "claims.json")
+BEGIN = ("<!-- headline: written by `python -m helpers.study.cli.readme` from reports/{quick,screens}/claims.json; "
+         "do not edit -->")
 END = "<!-- end of headline -->"
 #: Claims whose values are fractions or ratios, not percentages or points.
 _UNITS = {"fast_speedup": "x", "fast_greedy_agreement": ""}
@@ -66,13 +69,18 @@ def current_block(text: str) -> str | None:
     return text[text.index(BEGIN):text.index(END) + len(END)]
 
 
-def update(readme: Path = README, claims_path: Path = CLAIMS) -> bool:
-    """Rewrite the block of ``readme`` from ``claims_path``; True when it changed (ValueError without markers)."""
+def load_claims(paths: tuple[Path, ...] = CLAIMS) -> list[dict]:
+    """The claim records of every existing file of ``paths``, in order."""
+    return [c for p in paths if p.exists() for c in json.loads(p.read_text())]
+
+
+def update(readme: Path = README, claims_paths: tuple[Path, ...] = CLAIMS) -> bool:
+    """Rewrite the block of ``readme`` from ``claims_paths``; True when it changed (ValueError without markers)."""
     text = readme.read_text()
     old = current_block(text)
     if old is None:
         raise ValueError(f"{readme}: no headline markers ({BEGIN!r} ... {END!r})")
-    new = block(json.loads(claims_path.read_text()))
+    new = block(load_claims(claims_paths))
     if new != old:
         atomic_write_text(readme, text.replace(old, new))
     return new != old
@@ -83,9 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--check", action="store_true", help="exit 1 when the block differs from the claims")
     a = ap.parse_args(argv)
     if a.check:
-        same = current_block(README.read_text()) == block(json.loads(CLAIMS.read_text()))
-        print("README headline matches reports/quick/claims.json" if same else
-              "README headline differs from reports/quick/claims.json: run `python -m helpers.study.cli.readme`")
+        same = current_block(README.read_text()) == block(load_claims())
+        print("README headline matches the reports' claims.json" if same else
+              "README headline differs from the reports' claims.json: run `python -m helpers.study.cli.readme`")
         return 0 if same else 1
     print("README headline rewritten" if update() else "README headline already current")
     return 0

@@ -33,7 +33,7 @@ from ..provenance import git_revision
 from ..report import build_report
 
 PRESET_DIR = REPO_ROOT / "presets"
-PRESETS = ("smoke", "quick", "long", "paper", "real-lm")  # "standard" (180-step models) retired once the quick preset read the zoo
+PRESETS = ("smoke", "quick", "screens", "long", "paper", "real-lm")  # "standard" (180-step models) retired once the quick preset read the zoo
 STATE_FILE = "runner_state.json"
 COMMON = "common.yaml"  # parameters a preset's notebooks share
 NOTEBOOK_LIST = "notebooks.yaml"  # the notebooks a preset runs, where not all (real-lm: those of real data)
@@ -139,7 +139,7 @@ def run(preset: str, only: list[str] | None = None, html: bool = True, report: b
     with entry_lock(out, f"report folder {out.name} (another runner of this preset)"):
         _run_notebooks(preset, names, params, out, html, restart)
         if report:
-            build_report(preset, out.parent)
+            build_report(preset, out.parent, preset_notebooks(preset))
     return out
 
 
