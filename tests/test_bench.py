@@ -204,3 +204,20 @@ def test_the_opt_in_training_profile_splits_a_step_into_its_phases(tmp_path):
     assert v["validation_s_per_call"] > 0 and 0 < v["validation_share_per_step"]["zoo"] < \
         v["validation_share_per_step"]["quick"] < 1
     assert 0 < res["summary"]["train_profile_encode_share_64"] < 1
+
+
+def test_the_greedy_tiles_benchmark_writes_its_ratios_and_checks_the_answers(tmp_path):
+    """bench_greedy_tiles.py (tiny bank): every variant has a positive time, a ratio to one query at a time from the
+    same run, and the same answers as one query at a time."""
+    spec = importlib.util.spec_from_file_location("bench_greedy_tiles_under_test", BENCH.parent / "bench_greedy_tiles.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "tiles.json"
+    assert mod.main(["--out", str(out), "--queries", "3", "--repeats", "1", "--objects", "2", "--refs", "40"]) == 0
+    res = json.loads(out.read_text())
+    for fusion in ("adaptive", "avg"):
+        rows = res["fusion"][fusion]
+        assert len(rows) == len(mod.VARIANTS)
+        for v in rows.values():
+            _positive(v, "median_s_per_query", "speedup_vs_one_query")
+            assert v["same_answers_as_one_query"] is True

@@ -46,3 +46,11 @@ def test_an_evaluation_is_read_back_only_for_the_same_search_refs_and_queries(tm
     eval_cache.cached_evaluate(hog, data, bench, queries, GREEDY, folder, n_refs=6, device="cpu")
     eval_cache.cached_evaluate(hog, data, bench, {"duck": data.test_q["duck"]}, GREEDY, folder, device="cpu")
     assert len(calls) == 4 and len(list(folder.glob("*.csv"))) == 4
+
+
+def test_how_greedy_batches_its_work_is_not_part_of_the_key(tmp_path):
+    data, hog = _data(tmp_path), HogModel()
+    queries = {"bunny": data.test_q["bunny"]}
+    key = eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, SearchConfig("greedy"))
+    assert key == eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, GREEDY)
+    assert key != eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, SearchConfig("fast", k_ac=4))

@@ -332,3 +332,27 @@ def test_fast_search_defaults_to_the_papers_ratios():
         paper_ratio_search(0)
     P = check_parameters("03_evaluate", {"n_references": 512, "k_ac": 0, "fps_k": 0})
     assert (configs_from(P).search.k_ac, configs_from(P).search.fps_k) == (52, 13)
+
+
+@pytest.mark.parametrize("fusion", ["adaptive", "avg"])
+def test_greedy_queries_sharing_reference_tiles_give_the_same_answers(fusion):
+    """Greedy with ``query_batch`` > 1 (queries sharing each tile of ``group`` references, one scorer call per
+    query and tile) returns exactly the one-query-at-a-time answers and scores, for the fused-kernel path and the
+    "avg" matmul path of a real model over a float16 bank; each query's seconds are its share of the batch."""
+    from helpers.core.configs import ModelConfig
+    from helpers.net.model import OrientationNet
+
+    torch.manual_seed(0)
+    model = OrientationNet(ModelConfig(image_size=64, scales=(16, 13), fusion=fusion)).eval()
+    c, length = model.cfg.channels, model.feature_length
+    g = torch.Generator().manual_seed(5)
+    feats = [torch.nn.functional.normalize(torch.randn(90, c, length, generator=g), dim=1).half().numpy()
+             for _ in range(3)]
+    bank = ReferenceBank(feats, haar_uniform(90, seed=6), ["a", "b", "c"], k_ac=16)
+    q = torch.nn.functional.normalize(torch.randn(7, c, length, generator=g), dim=1)
+    scorer = model_scorer(model)
+    one = search_all(q, bank, scorer, SearchConfig("greedy"), progress=False)
+    tiled = search_all(q, bank, scorer, SearchConfig("greedy", group=32, query_batch=3), progress=False)
+    assert [(p.obj_index, p.ref_index, p.score, p.n_comparisons) for p in one] == \
+        [(p.obj_index, p.ref_index, p.score, p.n_comparisons) for p in tiled]
+    assert tiled[0].seconds == tiled[1].seconds == tiled[2].seconds > 0  # the first batch's equal shares
