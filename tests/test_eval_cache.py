@@ -48,9 +48,11 @@ def test_an_evaluation_is_read_back_only_for_the_same_search_refs_and_queries(tm
     assert len(calls) == 4 and len(list(folder.glob("*.csv"))) == 4
 
 
-def test_how_greedy_batches_its_work_is_not_part_of_the_key(tmp_path):
+def test_greedy_is_keyed_by_its_method_alone(tmp_path):
+    """Greedy's answers depend on no other field of the search config (anchors, batching), fast search's do."""
     data, hog = _data(tmp_path), HogModel()
     queries = {"bunny": data.test_q["bunny"]}
     key = eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, SearchConfig("greedy"))
     assert key == eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, GREEDY)
+    assert key == eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, SearchConfig("greedy", k_ac=7))
     assert key != eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, SearchConfig("fast", k_ac=4))

@@ -30,9 +30,9 @@ def eval_key(model: Any, data: StudyData, bench: list[str], queries: dict[str, O
     0: all), the query sets, the search and the symmetries the errors are scored under (a table scored before
     an object's symmetries were declared, or changed, is not reused)."""
     sym = {n: [e.symmetries, e.symmetry_axes] for n, e in ((n, data.manifest.object(n)) for n in queries)}
-    how = asdict(search)
-    if search.method == "greedy":  # how greedy batches its work never changes its answers (tests/test_retrieval.py)
-        how = {k: v for k, v in how.items() if k not in ("group", "query_batch")}
+    # Greedy scores every reference: its answers depend on nothing else of the config (how it batches the work
+    # included, tests/test_retrieval.py), so notebook 04's greedy and notebook 13's protocol search share tables.
+    how = {"method": "greedy"} if search.method == "greedy" else asdict(search)
     return stable_hash({"model": model_fingerprint(model), "bank": [data.key(n) for n in bench], "eval_refs": n_refs,
                         "queries": {n: [v.meta.get("key"), len(v)] for n, v in queries.items()},
                         "search": how, "threshold_deg": THRESHOLD_DEG, "symmetries": sym,
