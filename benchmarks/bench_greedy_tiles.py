@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from helpers.core.configs import ModelConfig, SearchConfig
+from helpers.core.paths import portable_obj
 from helpers.core.rotations import haar_uniform
 from helpers.net.model import OrientationNet
 from helpers.search.retrieval import ReferenceBank, model_scorer, search_all
@@ -90,7 +91,8 @@ def main(argv: list[str] | None = None) -> int:
            "queries": a.queries, "repeats": a.repeats, "torch_threads": torch.get_num_threads(),
            "device": device_info("cpu"), "cpu_flags": _cpu_flags(), "git": git_revision(),
            "fusion": {f: measure(f, a.queries, a.repeats, a.objects, a.refs) for f in ("adaptive", "avg")}}
-    Path(a.out).write_text(json.dumps(res, indent=2, sort_keys=True, default=str) + "\n")
+    # paths by their role (<cache>/...), never this machine's
+    Path(a.out).write_text(json.dumps(portable_obj(res), indent=2, sort_keys=True, default=str) + "\n")
     for f, rows in res["fusion"].items():
         for k, v in rows.items():
             print(f"{f:9s} {k:28s} {v['median_s_per_query'] * 1e3:8.1f} ms/query  x{v['speedup_vs_one_query']:.2f}"
