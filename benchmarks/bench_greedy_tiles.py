@@ -25,6 +25,7 @@ import torch
 
 from helpers.core.configs import ModelConfig, SearchConfig
 from helpers.core.paths import portable_obj
+from helpers.core.precision import cpu_flags
 from helpers.core.rotations import haar_uniform
 from helpers.net.model import OrientationNet
 from helpers.search.retrieval import ReferenceBank, model_scorer, search_all
@@ -69,15 +70,6 @@ def measure(fusion: str, n_queries: int, repeats: int, n_objects: int, n_refs: i
         "same_answers_as_one_query": answers[(qb, g)] == answers[VARIANTS[0]]} for qb, g in VARIANTS}
 
 
-def _cpu_flags() -> list[str]:
-    """The vector extensions this CPU reports (machines differ: AVX2 only, or AVX-512 with BF16)."""
-    try:
-        flags = next(ln for ln in Path("/proc/cpuinfo").read_text().splitlines() if ln.startswith("flags")).split()
-    except (OSError, StopIteration):
-        return []
-    return sorted(f for f in flags if f in ("avx2", "avx512f", "avx512_bf16", "amx_tile"))
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="benchmarks/results/greedy_tiles.json")
@@ -89,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     res = {"what": "greedy search, queries sharing reference tiles vs one query at a time (seconds per query)",
            "bank": {"objects": a.objects, "refs_per_object": a.refs, "dtype": "float16 memmap", "image_size": 64},
            "queries": a.queries, "repeats": a.repeats, "torch_threads": torch.get_num_threads(),
-           "device": device_info("cpu"), "cpu_flags": _cpu_flags(), "git": git_revision(),
+           "device": device_info("cpu"), "cpu_flags": sorted(cpu_flags() & {"avx2", "avx512f", "avx512_bf16", "amx_tile"}), "git": git_revision(),
            "fusion": {f: measure(f, a.queries, a.repeats, a.objects, a.refs) for f in ("adaptive", "avg")}}
     # paths by their role (<cache>/...), never this machine's
     Path(a.out).write_text(json.dumps(portable_obj(res), indent=2, sort_keys=True, default=str) + "\n")

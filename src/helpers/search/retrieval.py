@@ -125,24 +125,12 @@ def greedy_search(query_feat: Any, bank: ReferenceBank, scorer: Scorer, group: i
 
     Ties go to the lowest (object, reference) index.
     """
-    if group < 1:
-        raise ValueError(f"greedy_search: group must be >= 1, got {group}")
-    q = _as_query(query_feat)
-    _check_query(q, bank)
-    best = (-np.inf, 0, 0)
-    for o in range(bank.n_objects):
-        for s in range(0, bank.n_refs, group):
-            refs = bank.chunk(o, s, s + group)
-            sc = _run_scorer(scorer, q, refs)
-            j = int(np.argmax(sc))
-            if sc[j] > best[0]:
-                best = (float(sc[j]), o, s + j)
-    score, o, r = best
-    return Prediction(o, r, score, bank.n_objects * bank.n_refs, bank.rotations[r].copy(), bank.names[o])
+    return greedy_search_batch([query_feat], bank, scorer, group)[0]
 
 
 def greedy_search_batch(query_feats: Any, bank: ReferenceBank, scorer: Scorer, group: int = 1024) -> list[Prediction]:
-    """:func:`greedy_search` of each of B queries (B, C, L), the queries sharing each reference tile.
+    """:func:`greedy_search` of each of B queries (B, C, L), the queries sharing each reference tile (ties go to the
+    lowest (object, reference) index).
 
     Each tile of ``group`` references is taken from the bank once and scored against every query in turn, one
     query per scorer call as :func:`greedy_search` makes them, so every score and answer is the same as one query
@@ -150,7 +138,7 @@ def greedy_search_batch(query_feats: Any, bank: ReferenceBank, scorer: Scorer, g
     batch instead of once per query (a 64 px reference is 88 KB in float16, so 128 of them are 11 MB).
     """
     if group < 1:
-        raise ValueError(f"greedy_search_batch: group must be >= 1, got {group}")
+        raise ValueError(f"greedy search: group must be >= 1, got {group}")
     qs = [_as_query(q) for q in query_feats]
     for q in qs:
         _check_query(q, bank)

@@ -15,6 +15,7 @@ import pandas as pd
 
 from ...core.configs import SearchConfig
 from ...core.fileio import atomic_write_text, stable_hash
+from ...core.paths import cache_dir
 from ...core.views import ObjectViews
 from ...evaluation.metrics import summarise_queries
 from ...search.features import model_fingerprint
@@ -22,6 +23,11 @@ from ..pipeline import StudyData, evaluate, reference_bank
 
 #: The error threshold (degrees) every cached table is scored with (Rota. Acc.'s 30 deg).
 THRESHOLD_DEG = 30.0
+
+
+def evals_folder(data: StudyData) -> Path:
+    """The cache's folder of per-query tables (``<cache>/evals``) for ``data``'s cache."""
+    return cache_dir(data.cfg.cache_dir or None) / "evals"
 
 
 def eval_key(model: Any, data: StudyData, bench: list[str], queries: dict[str, ObjectViews], n_refs: int,

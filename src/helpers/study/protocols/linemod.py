@@ -20,7 +20,6 @@ import numpy as np
 import pandas as pd
 
 from ...core.configs import GREEDY, PAPER_K_AC, PAPER_N_REFS, SearchConfig
-from ...core.paths import cache_dir
 from ...core.rotations import haar_uniform
 from ...evaluation import paper
 from ...evaluation.baselines import HogModel
@@ -28,7 +27,7 @@ from ...evaluation.metrics import Record, per_query_table, summarise_queries
 from ...search.fps import anchor_coverage_deg
 from ...search.retrieval import search_all
 from ..pipeline import StudyData, encode_queries, evaluate, first, reference_bank
-from .eval_cache import cached_evaluate
+from .eval_cache import cached_evaluate, evals_folder
 
 
 PARTS = ("unseen", "seen", "occluded")
@@ -54,7 +53,7 @@ def evaluate_split(model: Any, data: StudyData, split: int, search: SearchConfig
                "occluded": lambda: {n: first(data.occluded_q[n], occluded_queries) for n in unseen
                                     if n in data.occluded_q}}
     asked = {p: queries[p]() for p in PARTS if p in parts}
-    folder = cache_dir(data.cfg.cache_dir or None) / "evals"
+    folder = evals_folder(data)
     # real LineMOD without its LineMOD-O folder has no occluded views: that part is left out, not scored on nothing
     return {"model": model, **{p: cached_evaluate(model, data, bench, q, search, folder, device=device)
                                for p, q in asked.items() if q or p != "occluded"}}

@@ -41,12 +41,11 @@ import pandas as pd
 
 from ...core.configs import GREEDY, parse_scales
 from ...core.fileio import atomic_write_json, write_table
-from ...core.paths import cache_dir
 from ...core.views import ObjectViews
 from ...evaluation.stats import accuracy_ci, seed_mean
 from ..pipeline import StudyData
 from ..zoo import model_for
-from .eval_cache import cached_evaluate
+from .eval_cache import cached_evaluate, evals_folder
 
 NOISE_NOTE = ("claims compare object-averaged Rota. Acc. of two variants on the same queries; ci is a paired "
               "bootstrap 95 % interval (queries resampled within objects) of the difference of accuracies averaged "
@@ -139,7 +138,7 @@ def _evals_dir(t: Trained, data: StudyData) -> Path:
     (whose "run" is its committed weight file) the cache's ``evals/``, so nothing is written into
     ``models/``; the file names hold the weights' fingerprint either way."""
     run = Path(t.run)
-    return run / "evals" if run.is_dir() else cache_dir(data.cfg.cache_dir) / "evals"
+    return run / "evals" if run.is_dir() else evals_folder(data)
 
 
 def evaluate_unseen(trained: dict[str, Any], data: StudyData, split: int, eval_refs: int = 0,
