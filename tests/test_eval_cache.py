@@ -56,3 +56,17 @@ def test_greedy_is_keyed_by_its_method_alone(tmp_path):
     assert key == eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, GREEDY)
     assert key == eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, SearchConfig("greedy", k_ac=7))
     assert key != eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, SearchConfig("fast", k_ac=4))
+
+
+def test_a_table_of_older_scoring_code_is_not_read_back(tmp_path, monkeypatch):
+    """The key covers the search, evaluate, metric and rotation code: edit any of them and the table is new."""
+    data, hog = _data(tmp_path), HogModel()
+    queries = {"bunny": data.test_q["bunny"]}
+    names = {p.name for p in eval_cache.scoring_sources()}
+    assert {"search", "pipeline.py", "metrics.py", "rotations.py"} <= names
+    src = tmp_path / "scoring.py"
+    src.write_text("y = 1\n")
+    monkeypatch.setattr(eval_cache, "scoring_sources", lambda: [src])
+    before = eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, GREEDY)
+    src.write_text("y = 2\n")
+    assert eval_cache.eval_key(hog, data, ["bunny", "duck"], queries, 0, GREEDY) != before

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 import torch
 
+from helpers.core.configs import ModelConfig
+from helpers.core.fileio import source_digest
 from helpers.core.views import ObjectViews
 from helpers.search.features import FeatureCache, encode_views, model_fingerprint
 
@@ -101,3 +103,33 @@ def test_fingerprint():
     c.config = {"pool": 2}
     assert model_fingerprint(a) != model_fingerprint(c)
     assert len(model_fingerprint(a)) == 16
+
+
+def test_fingerprint_changes_with_the_encoding_code(tmp_path, monkeypatch):
+    """Cached features of older encoding code are never read back: the key covers the encoder's source."""
+    from helpers.net.model import OrientationNet
+    from helpers.search import features
+    net = features.encoder_sources(OrientationNet(ModelConfig()))
+    assert net and net[0].name == "net" and net[0].is_dir()  # the backbone and kernel beside the model count
+    assert features.encoder_sources(FakeModel())[0].name == "test_features.py"
+    src = tmp_path / "encoder.py"
+    src.write_text("x = 1\n")
+    monkeypatch.setattr(features, "encoder_sources", lambda model: [src])
+    before = model_fingerprint(FakeModel())
+    src.write_text("x = 2\n")
+    assert model_fingerprint(FakeModel()) != before
+
+
+def test_source_digest_reads_what_files_say(tmp_path):
+    """A folder counts by its .py and .cpp files; the digest changes with a file's bytes, not its mtime."""
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "a.py").write_text("a = 1\n")
+    (tmp_path / "pkg" / "k.cpp").write_text("int k;\n")
+    (tmp_path / "pkg" / "notes.txt").write_text("ignored\n")
+    d = source_digest([tmp_path / "pkg"])
+    (tmp_path / "pkg" / "notes.txt").write_text("changed\n")
+    (tmp_path / "pkg" / "a.py").touch()
+    assert source_digest([tmp_path / "pkg"]) == d and len(d) == 16
+    (tmp_path / "pkg" / "k.cpp").write_text("int k2;\n")
+    assert source_digest([tmp_path / "pkg"]) != d
+    assert source_digest([tmp_path / "pkg" / "a.py"]) != source_digest([tmp_path / "pkg"])

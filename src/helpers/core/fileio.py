@@ -67,6 +67,22 @@ def stable_hash(obj: Any, n: int = 16) -> str:
     return hashlib.sha256(blob).hexdigest()[:n]
 
 
+def source_digest(paths: list[str | os.PathLike], n: int = 16) -> str:
+    """Short hex sha256 of the bytes of the source files ``paths`` (a folder: its ``*.py`` and ``*.cpp`` files,
+    not recursively), in sorted order, with their names.
+
+    Cache keys take it so that an entry computed by older code is never read back after that code changed
+    (what a file says, not its modification time: a fresh clone of the same revision gets the same digest)."""
+    files: list[Path] = []
+    for p in map(Path, paths):
+        files += sorted(q for q in p.iterdir() if q.suffix in (".py", ".cpp")) if p.is_dir() else [p]
+    h = hashlib.sha256()
+    for f in sorted(set(files)):
+        h.update(f"{f.parent.name}/{f.name}\0".encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:n]
+
+
 def _json_default(o: Any) -> Any:
     if isinstance(o, np.ndarray):
         return o.tolist()

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import inspect
 import json
 import os
 import warnings
@@ -33,7 +34,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from ..core.fileio import DamagedEntry, atomic_write_json, preallocate, sha256_file, touch
+from ..core import local_norm, precision
+from ..core.fileio import DamagedEntry, atomic_write_json, preallocate, sha256_file, source_digest, touch
 from ..core.locks import entry_lock, made_by, settle
 from ..core.views import ObjectViews
 
@@ -97,16 +99,32 @@ def _config_of(model: Any) -> Any:
     return cfg
 
 
+def encoder_sources(model: Any) -> list[Path]:
+    """The source files that turn images into ``model``'s features: its class's module (for the network, the
+    whole ``helpers/net`` folder, since its model calls the backbone and fused kernel beside it) and the shared
+    preprocessing and precision rules. Empty for a class whose source cannot be found (defined in a notebook)."""
+    try:
+        f = Path(inspect.getsourcefile(type(model)) or "")
+    except TypeError:
+        return []
+    if not f.is_file():
+        return []
+    return [f.parent if f.parent.name == "net" else f, Path(local_norm.__file__), Path(precision.__file__)]
+
+
 def model_fingerprint(model: Any, n: int = 16) -> str:
-    """Short hex sha256 of the model's class, config and state_dict bytes.
+    """Short hex sha256 of the model's class, config, state_dict bytes and encoding code (:func:`encoder_sources`).
 
     Two models with the same weights and config get the same key, so their
-    reference features can be shared; any weight change gives a new key.
-    ``model.config`` (dict or dataclass; optional) must be JSON-serialisable.
+    reference features can be shared; any weight change gives a new key, and so
+    does a change to the code that encodes (cached features of older code are
+    never read back). ``model.config`` (dict or dataclass; optional) must be JSON-serialisable.
     """
     h = hashlib.sha256()
     cls = type(model)
     h.update(f"{cls.__module__}.{cls.__qualname__}".encode())
+    sources = encoder_sources(model)
+    h.update(f"code:{source_digest(sources) if sources else '-'}".encode())
     h.update(json.dumps(_config_of(model), sort_keys=True, default=str).encode())
     if hasattr(model, "state_dict"):
         for name, t in sorted(model.state_dict().items()):

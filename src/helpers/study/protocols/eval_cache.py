@@ -14,15 +14,26 @@ from typing import Any
 import pandas as pd
 
 from ...core.configs import SearchConfig
-from ...core.fileio import atomic_write_text, stable_hash
+from ...core import rotations
+from ...core.fileio import atomic_write_text, source_digest, stable_hash
 from ...core.paths import cache_dir
 from ...core.views import ObjectViews
+from ...evaluation import metrics
 from ...evaluation.metrics import summarise_queries
+from ...search import retrieval
 from ...search.features import model_fingerprint
+from .. import pipeline
 from ..pipeline import StudyData, evaluate, reference_bank
 
 #: The error threshold (degrees) every cached table is scored with (Rota. Acc.'s 30 deg).
 THRESHOLD_DEG = 30.0
+
+
+def scoring_sources() -> list[Path]:
+    """The source files that turn encoded views into a per-query table beyond the encoder (which
+    :func:`model_fingerprint` covers): the search package, the pipeline's evaluate, the error metrics and the
+    rotation maths (symmetric errors)."""
+    return [Path(retrieval.__file__).parent, Path(pipeline.__file__), Path(metrics.__file__), Path(rotations.__file__)]
 
 
 def evals_folder(data: StudyData) -> Path:
@@ -34,7 +45,8 @@ def eval_key(model: Any, data: StudyData, bench: list[str], queries: dict[str, O
              search: SearchConfig) -> str:
     """What a per-query table depends on: the weights, the reference sets of ``bench`` (and how many of each,
     0: all), the query sets, the search and the symmetries the errors are scored under (a table scored before
-    an object's symmetries were declared, or changed, is not reused)."""
+    an object's symmetries were declared, or changed, is not reused) and the code that scores
+    (:func:`scoring_sources`: a table of older code is not reused either)."""
     sym = {n: [e.symmetries, e.symmetry_axes] for n, e in ((n, data.manifest.object(n)) for n in queries)}
     # Greedy scores every reference: its answers depend on nothing else of the config (how it batches the work
     # included, tests/test_retrieval.py), so notebook 04's greedy and notebook 13's protocol search share tables.
@@ -42,7 +54,7 @@ def eval_key(model: Any, data: StudyData, bench: list[str], queries: dict[str, O
     return stable_hash({"model": model_fingerprint(model), "bank": [data.key(n) for n in bench], "eval_refs": n_refs,
                         "queries": {n: [v.meta.get("key"), len(v)] for n, v in queries.items()},
                         "search": how, "threshold_deg": THRESHOLD_DEG, "symmetries": sym,
-                        "columns": "R_est,R_gt"})
+                        "columns": "R_est,R_gt", "code": source_digest(scoring_sources())})
 
 
 def cached_evaluate(model: Any, data: StudyData, bench: list[str], queries: dict[str, ObjectViews],
