@@ -21,9 +21,9 @@ measurement module:
 * ``bench_train.py``: training step, encoding, training A/B (``train``,
   ``encode``, ``train_ab``);
 * ``bench_fusion.py``: GEMM, fusion kernel, FLOP counts (``gemm``, ``fusion``);
-* ``bench_retrieval.py``: synthetic bank and retrieval, real-set agreement,
-  cache bytes (``retrieval_synthetic``, ``retrieval_real``,
-  ``cache_bytes_13x10000``);
+* ``bench_retrieval.py``: synthetic bank and retrieval, cache bytes
+  (``retrieval_synthetic``, ``cache_bytes_13x10000``);
+* ``bench_retrieval_real.py``: real-set agreement (``retrieval_real``);
 * ``bench_precision.py``: bf16 against float32 training, speed and fidelity
   (``precision``; opt-in, run only when named in ``--sections``);
 * ``bench_profile.py``: one training step phase by phase, and validation's share
@@ -63,13 +63,11 @@ from bench_retrieval import (  # noqa: E402,F401
     PAPER_REFS,
     _smooth_bases,
     _smooth_features,
-    bench_real_agreement,
     bench_retrieval_synthetic,
     cache_bytes,
-    scaled_c2f_params,
-    scaled_fast_params,
     write_synthetic_bank,
 )
+from bench_retrieval_real import bench_real_agreement, scaled_c2f_params, scaled_fast_params  # noqa: E402,F401
 from bench_config import FULL, QUICK, BenchConfig  # noqa: E402,F401
 from bench_precision import bench_precision  # noqa: E402
 from bench_profile import bench_train_profile  # noqa: E402
@@ -175,23 +173,30 @@ def evaluate_targets(res: dict) -> dict:
 
 # =========================================================================== driver
 
-def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = None, tmp_root: str | None = None,
-        sections: tuple[str, ...] | None = None) -> dict:
-    """Run every section and write the JSON atomically; returns the result dict."""
-    import torch
+_MEMORY_NOTE = (
+    "maxrss_bytes (= VmHWM) is ru_maxrss of this process: it includes file-backed pages of the "
+    "memory-mapped reference files touched by the searches. section_peak_RssAnon / RssFile are sampled "
+    "every 0.1 s: RssAnon is the process's own heap (model, buffers, float32 reference chunks), RssFile "
+    "the mapped reference pages (reclaimable page cache). children_maxrss_bytes is NOT the render "
+    "workers' own peak: on Linux a spawned child inherits the parent's high-water mark at fork/exec")
 
-    from helpers.core.fileio import atomic_write_json
-    from helpers.core.paths import portable_obj
-    from helpers.study.provenance import run_record
 
-    gate = timing.configure(cfg.quiet_threshold, cfg.wait_quiet_s, cfg.retry_contended)
-    torch.set_num_threads(cfg.threads)
+def _check_sections(sections: tuple[str, ...] | None) -> tuple[str, ...]:
+    """The sections to run (``DEFAULT_SECTIONS`` when none are named); ValueError names any unknown one."""
     sections = sections or DEFAULT_SECTIONS
     unknown = sorted(set(sections) - set(DEFAULT_SECTIONS) - set(OPT_IN_SECTIONS))
     if unknown:
         raise ValueError(f"--sections: unknown {unknown}; expected a subset of "
                          f"{', '.join(DEFAULT_SECTIONS + OPT_IN_SECTIONS)}")
-    t_start = time.perf_counter()
+    return sections
+
+
+def _run_header(cfg: BenchConfig, checkpoint: str | None) -> dict:
+    """The result's opening fields: schema, mode, config, how timings are taken, the machine's load at the
+    start, provenance, hashes of the measured sources and the fusion kernel's status; empty
+    ``section_seconds`` and ``memory``."""
+    from helpers.study.provenance import run_record
+
     res: dict[str, Any] = {
         "schema_version": SCHEMA_VERSION, "mode": cfg.mode, "config": cfg.to_dict(),
         "timing": "medians over `repeats` timed runs after `warmup` untimed runs, time.perf_counter; "
@@ -207,7 +212,13 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
     from helpers.net import fusion_kernel
     fusion_kernel.get()
     res["fusion_kernel"] = fusion_kernel.status()
+    return res
 
+
+def _run_sections(cfg: BenchConfig, res: dict, sections: tuple[str, ...], checkpoint: str | None,
+                  tmp_root: str | None) -> PeakSampler:
+    """Run the chosen sections in their fixed order into ``res`` (with each one's seconds and memory);
+    returns the still-running peak-memory sampler, for the caller to stop."""
     sampler = PeakSampler().start()
 
     def section(name: str, fn: Callable[[], Any]) -> None:
@@ -232,24 +243,44 @@ def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = 
     section("retrieval_real", lambda: bench_real_agreement(cfg, checkpoint, tmp_root))
     section("precision", lambda: bench_precision(cfg))
     section("train_profile", lambda: bench_train_profile(cfg))
+    return sampler
+
+
+def _memory_peak(memory: dict) -> dict:
+    """A memory snapshot now plus the largest sampled anonymous and file-backed RSS (bytes) over the sections'
+    ``after_<name>`` entries of ``memory`` (0 when no section ran)."""
+    peak = memory_snapshot()
+    peak["peak_RssAnon_bytes"] = max(v.get("section_peak_RssAnon", 0) for v in memory.values()) \
+        if memory else 0
+    peak["peak_RssFile_bytes"] = max(v.get("section_peak_RssFile", 0) for v in memory.values()) \
+        if memory else 0
+    return peak
+
+
+def run(cfg: BenchConfig, out_path: str | os.PathLike, checkpoint: str | None = None, tmp_root: str | None = None,
+        sections: tuple[str, ...] | None = None) -> dict:
+    """Run every section and write the JSON atomically; returns the result dict."""
+    import torch
+
+    from helpers.core.fileio import atomic_write_json
+    from helpers.core.paths import portable_obj
+    # Loaded before t_start, so its import time stays outside total_seconds; _run_header uses it.
+    from helpers.study.provenance import run_record  # noqa: F401
+
+    gate = timing.configure(cfg.quiet_threshold, cfg.wait_quiet_s, cfg.retry_contended)
+    torch.set_num_threads(cfg.threads)
+    sections = _check_sections(sections)
+    t_start = time.perf_counter()
+    res = _run_header(cfg, checkpoint)
+    sampler = _run_sections(cfg, res, sections, checkpoint, tmp_root)
 
     res["cache_bytes_13x10000"] = cache_bytes(sizes=(64, 128))
     written = res.get("retrieval_synthetic", {}).get("write")
     if written:
         res["cache_bytes_written"] = written
     sampler.stop()
-    peak = memory_snapshot()
-    peak["peak_RssAnon_bytes"] = max(v.get("section_peak_RssAnon", 0) for v in res["memory"].values()) \
-        if res["memory"] else 0
-    peak["peak_RssFile_bytes"] = max(v.get("section_peak_RssFile", 0) for v in res["memory"].values()) \
-        if res["memory"] else 0
-    res["memory"]["peak"] = peak
-    res["memory"]["note"] = (
-        "maxrss_bytes (= VmHWM) is ru_maxrss of this process: it includes file-backed pages of the "
-        "memory-mapped reference files touched by the searches. section_peak_RssAnon / RssFile are sampled "
-        "every 0.1 s: RssAnon is the process's own heap (model, buffers, float32 reference chunks), RssFile "
-        "the mapped reference pages (reclaimable page cache). children_maxrss_bytes is NOT the render "
-        "workers' own peak: on Linux a spawned child inherits the parent's high-water mark at fork/exec")
+    res["memory"]["peak"] = _memory_peak(res["memory"])
+    res["memory"]["note"] = _MEMORY_NOTE
     res["targets"] = evaluate_targets(res)
     res["summary"] = summarise(res)
     res["loadavg_end"] = list(os.getloadavg())

@@ -1,13 +1,13 @@
-"""Sections 5, 5b and 6 of the CPU benchmark: retrieval speed and agreement, and cache size.
+"""Sections 5 and 6 of the CPU benchmark: retrieval speed and cache size.
 
 * ``retrieval_synthetic``: seconds/query of the authors' fast search, its
   batched anchor stage, the coarse-to-fine variant ("c2f") and greedy search,
   over K objects x R references of rotation-smooth synthetic float16 features
   in memory-mapped files (:func:`write_synthetic_bank`);
-* ``retrieval_real``: fast, c2f and greedy on a small rendered set (agreement
-  and Rota. Acc.);
 * ``cache_bytes_13x10000``: float16 reference-cache bytes from the feature shapes.
 
+Section 5b (``retrieval_real``) lives in ``bench_retrieval_real.py``, above this
+module: it shares the paper's search constants and :func:`_search_timed`.
 Called by ``benchmarks/bench.py``.
 """
 
@@ -117,15 +117,11 @@ def _search_timed(fn, queries, bank, scorer, *args, **kw) -> tuple[list, dict]:
                    "contended_queries": sum(1 for o in known if o >= gate().threshold)}
 
 
-def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> dict:
-    """Fast vs greedy seconds/query over K objects x R references of float16 memmapped features."""
+def _synthetic_header(cfg: BenchConfig, model) -> tuple[dict, int, int]:
+    """(out, C, L): the retrieval_synthetic result's fixed part, with ``model``'s feature shape (C channels,
+    L locations) checked against one encode, and an empty ``banks``."""
     import torch
 
-    from helpers.core.configs import SearchConfig
-    from helpers.core.rotations import haar_uniform
-    from helpers.search.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer, search_all
-
-    model = _model(cfg.retr_size, cfg.seed, monotone=True).eval()
     c, length = model.cfg.channels, model.feature_length
     with torch.inference_mode():
         enc_shape = tuple(model.encode(torch.rand(1, 3, cfg.retr_size, cfg.retr_size)).shape)
@@ -147,247 +143,215 @@ def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> 
                                "best objects only; rotation stage as fast"},
         "greedy_params": {"group": 1024}, "scorer_chunk": 1024,
         "banks": {}}
-    r_max = max(cfg.retr_refs)
-    need = cfg.retr_objects * r_max * c * length * 2
+    return out, c, length
+
+
+def _bank_sizes_that_fit(cfg: BenchConfig, out: dict, folder: Path, c: int, length: int, need: int) -> list[int]:
+    """The bank sizes R (ascending) whose float16 files fit on ``folder``'s disk with ``disk_margin_bytes`` to spare.
+
+    ``need`` is the bytes of the largest bank. Records the free space in
+    ``out["disk"]`` and each bank that does not fit in ``out["banks"]`` as skipped.
+    """
+    free = shutil.disk_usage(folder).free
+    out["disk"] = {"folder": str(folder), "free_bytes": free, "needed_bytes": need,
+                   "margin_bytes": cfg.disk_margin_bytes}
+    r_list = sorted(cfg.retr_refs)
+    if free < need + cfg.disk_margin_bytes:
+        ok = [r for r in r_list if cfg.retr_objects * r * c * length * 2 + cfg.disk_margin_bytes <= free]
+        for r in r_list:
+            if r not in ok:
+                out["banks"][f"{cfg.retr_objects}x{r}"] = {
+                    "skipped": True, "reason": f"needs {cfg.retr_objects * r * c * length * 2} bytes + "
+                                               f"{cfg.disk_margin_bytes} margin, only {free} free"}
+        r_list = ok
+    return r_list
+
+
+def _write_and_map_bank(cfg: BenchConfig, out: dict, folder: Path, r_max: int, c: int,
+                        length: int) -> tuple[np.ndarray, list[np.ndarray], list[np.memmap]]:
+    """(rotations (r_max, 3, 3), per-object bases (10, C*L), read-only float16 memmaps (r_max, C, L) per object).
+
+    Writes the ``retr_objects`` x ``r_max`` bank under ``folder`` and reads it
+    through once, recording both in ``out["write"]`` and ``out["read_through"]``.
+    """
+    from helpers.core.rotations import haar_uniform
+
+    all_rots = haar_uniform(r_max, seed=cfg.seed)
+    log(f"writing synthetic bank {cfg.retr_objects} x {r_max} "
+        f"({cfg.retr_objects * r_max * c * length * 2 / 1e9:.2f} GB)")
+    w = write_synthetic_bank(folder, cfg.retr_objects, r_max, c, length, all_rots, cfg.seed)
+    bases = w.pop("bases")
+    out["write"] = {k: v for k, v in w.items() if k != "paths"}
+    out["read_through"] = _read_through(w["paths"])
+    log(f"bank written in {w['write_s']:.0f} s, read back at {out['read_through']['gb_per_s']:.2f} GB/s")
+    mms = [np.memmap(p, dtype=np.float16, mode="r", shape=(r_max, c, length)) for p in w["paths"]]
+    return all_rots, bases, mms
+
+
+def _synthetic_queries(cfg: BenchConfig, bases: list[np.ndarray], c: int, length: int) -> tuple[np.ndarray, list, Any]:
+    """(q_obj (n,), queries: n float32 tensors (C, L), warm-up query (C, L)) with noise 1.0, for
+    n = the most queries any search of this section uses."""
+    import torch
+
+    from helpers.core.rotations import haar_uniform
+
+    rng = np.random.default_rng(cfg.seed + 5)
+    n_q = max(cfg.retr_fast_queries, cfg.retr_greedy_queries, cfg.retr_batch_queries)
+    q_obj = rng.integers(0, cfg.retr_objects, n_q)
+    q_rot = haar_uniform(n_q, seed=cfg.seed + 6)
+    queries = [torch.from_numpy(_smooth_features(bases[o], q_rot[i:i + 1], c, length, 1.0, rng)[0])
+               for i, o in enumerate(q_obj)]
+    warm = torch.from_numpy(_smooth_features(bases[0], haar_uniform(1, seed=99), c, length, 1.0, rng)[0])
+    return q_obj, queries, warm
+
+
+def _build_bank(mms: list[np.memmap], all_rots: np.ndarray, names: list[str], r: int) -> tuple[Any, float, float]:
+    """(bank, build seconds, anchor gather seconds): a ReferenceBank over the first ``r`` references of each object,
+    with its PAPER_K_AC anchors gathered into RAM."""
+    from helpers.search.retrieval import ReferenceBank
+
+    t0 = time.perf_counter()
+    bank = ReferenceBank([m[:r] for m in mms], all_rots[:r], names, k_ac=PAPER_K_AC)
+    anchors_s = time.perf_counter() - t0
+    wait_quiet()
+    t0 = time.perf_counter()
+    bank.anchor_feats(PAPER_K_AC)  # once per bank: anchors gathered into RAM
+    anchor_gather_s = time.perf_counter() - t0
+    return bank, anchors_s, anchor_gather_s
+
+
+def _warm_and_time(warm, queries: list, bank, scorer, search_cfg) -> tuple[list, dict]:
+    """(predictions, timings) of ``fast_search`` with ``search_cfg`` after one untimed query ``warm``."""
+    from helpers.search.retrieval import fast_search
+
+    fast_search(warm, bank, scorer, search_cfg)  # warm-up
+    return _search_timed(fast_search, queries, bank, scorer, search_cfg)
+
+
+def _time_fast_batched(cfg: BenchConfig, queries: list, bank, scorer, fast_cfg, fp: list) -> dict:
+    """Seconds/query of ``search_all`` with ``retr_query_batch`` queries per anchor pass over the first
+    ``retr_batch_queries`` queries, and the share of its answers equal to the single-query ones ``fp``."""
+    import torch
+
+    from helpers.search.retrieval import search_all
+
+    qb = torch.stack(queries[:cfg.retr_batch_queries])
+    with Probe() as pb:
+        bp = search_all(qb, bank, scorer, replace(fast_cfg, query_batch=cfg.retr_query_batch), progress=False)
+    return {"n_queries": len(bp), "query_batch": cfg.retr_query_batch,
+            "wall_s": pb.wall, "s_per_query_mean": pb.wall / len(bp),
+            "s_per_query_median": statistics.median(p.seconds for p in bp),
+            "comparisons_per_query_median": statistics.median(p.n_comparisons for p in bp),
+            "others_cpu_fraction": pb.others,
+            "same_predictions_as_single_query": float(np.mean(
+                [a.obj_index == b.obj_index and a.ref_index == b.ref_index
+                 for a, b in zip(bp, fp)])),
+            "note": "search_all(method='fast', query_batch): the anchors of query_batch queries "
+                    "are scored in one many-query pass; each query's seconds = its refinement + "
+                    "an equal share of its batch's anchor pass; s_per_query_mean = wall / n"}
+
+
+def _time_bank_searches(cfg: BenchConfig, key: str, bank, scorer, queries: list, warm) -> tuple[dict, dict]:
+    """(timings, predictions), each keyed "fast", "fast_batched" (timings only), "c2f", "c2f_halving", "greedy":
+    every search of the synthetic section over one bank, in that order, each after waiting for quiet."""
+    from helpers.core.configs import SearchConfig
+    from helpers.search.retrieval import greedy_search
+
+    fast_cfg = SearchConfig("fast", k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)
+    fp, fast = _warm_and_time(warm, queries[:cfg.retr_fast_queries], bank, scorer, fast_cfg)
+    log(f"{key}: fast {fast['s_per_query_median']:.2f} s/query, "
+        f"{fast['comparisons_per_query_median']:.0f} comparisons")
+    wait_quiet()
+    fast_batched = _time_fast_batched(cfg, queries, bank, scorer, fast_cfg, fp)
+    log(f"{key}: fast batched {fast_batched['s_per_query_mean']:.2f} s/query")
+    wait_quiet()
+    c2f_cfg = replace(fast_cfg, method="c2f", coarse_k=C2F_COARSE_K, refine_objects=C2F_REFINE_OBJECTS)
+    cp, c2f = _warm_and_time(warm, queries[:cfg.retr_fast_queries], bank, scorer, c2f_cfg)
+    log(f"{key}: c2f {c2f['s_per_query_median']:.3f} s/query, "
+        f"{c2f['comparisons_per_query_median']:.0f} comparisons")
+    wait_quiet()
+    halving_cfg = replace(c2f_cfg, refine_objects=C2F_HALVING_REFINE_OBJECTS, halving=True)
+    hp, c2fh = _warm_and_time(warm, queries[:cfg.retr_fast_queries], bank, scorer, halving_cfg)
+    log(f"{key}: c2f halving {c2fh['s_per_query_median']:.3f} s/query, "
+        f"{c2fh['comparisons_per_query_median']:.0f} comparisons")
+    wait_quiet()
+    gp, greedy = _search_timed(greedy_search, queries[:cfg.retr_greedy_queries], bank, scorer, group=1024)
+    log(f"{key}: greedy {greedy['s_per_query_median']:.2f} s/query")
+    timings = {"fast": fast, "fast_batched": fast_batched, "c2f": c2f, "c2f_halving": c2fh, "greedy": greedy}
+    return timings, {"fast": fp, "c2f": cp, "c2f_halving": hp, "greedy": gp}
+
+
+def _bank_entry(cfg: BenchConfig, r: int, bank, anchors_s: float, anchor_gather_s: float, timings: dict,
+                preds: dict, q_obj: np.ndarray) -> dict:
+    """One bank's result: the timings of :func:`_time_bank_searches`, speed-ups (ratios of seconds/query),
+    comparison ratios and the agreements between the searches' predictions (fractions of queries)."""
+    fast, fast_batched, greedy = timings["fast"], timings["fast_batched"], timings["greedy"]
+    c2f, c2fh = timings["c2f"], timings["c2f_halving"]
+    fp, gp, cp, hp = preds["fast"], preds["greedy"], preds["c2f"], preds["c2f_halving"]
+    n_common = min(len(fp), len(gp))
+    agree = [fp[i].obj_index == gp[i].obj_index and fp[i].ref_index == gp[i].ref_index
+             for i in range(n_common)]
+    correct_obj = [gp[i].obj_index == q_obj[i] for i in range(n_common)]
+    c2f_fast = [_same(a, b) for a, b in zip(cp, fp)]
+    c2f_greedy = [_same(a, b) for a, b in zip(cp, gp)]  # the first len(gp) queries
+    return {
+        "n_objects": cfg.retr_objects, "R": r, "pairs_total": cfg.retr_objects * r,
+        "anchors_k": int(len(bank.anchors(PAPER_K_AC))), "bank_build_s": anchors_s,
+        "anchor_gather_s": anchor_gather_s,
+        "fast": fast, "fast_batched": fast_batched, "greedy": greedy,
+        "speedup_greedy_over_fast": greedy["s_per_query_median"] / fast["s_per_query_median"],
+        "speedup_greedy_over_fast_batched": greedy["s_per_query_median"] / fast_batched["s_per_query_mean"],
+        "comparison_ratio_greedy_over_fast": (cfg.retr_objects * r) / fast["comparisons_per_query_median"],
+        "synthetic_agreement_fast_greedy": float(np.mean(agree)) if agree else None,
+        "synthetic_greedy_object_correct": float(np.mean(correct_obj)) if correct_obj else None,
+        "c2f": c2f,
+        "speedup_greedy_over_c2f": greedy["s_per_query_median"] / c2f["s_per_query_median"],
+        "speedup_fast_over_c2f": fast["s_per_query_median"] / c2f["s_per_query_median"],
+        "comparison_ratio_greedy_over_c2f": (cfg.retr_objects * r) / c2f["comparisons_per_query_median"],
+        "synthetic_agreement_c2f_fast": float(np.mean(c2f_fast)) if c2f_fast else None,
+        "synthetic_agreement_c2f_fast_object": float(np.mean([a.obj_index == b.obj_index
+                                                              for a, b in zip(cp, fp)])) if cp else None,
+        "synthetic_agreement_c2f_greedy": float(np.mean(c2f_greedy)) if c2f_greedy else None,
+        "c2f_agreement_queries": {"fast": len(c2f_fast), "greedy": len(c2f_greedy)},
+        "c2f_halving": c2fh,
+        "speedup_greedy_over_c2f_halving": greedy["s_per_query_median"] / c2fh["s_per_query_median"],
+        "comparison_ratio_greedy_over_c2f_halving": (cfg.retr_objects * r)
+        / c2fh["comparisons_per_query_median"],
+        "synthetic_agreement_c2f_halving_fast": float(np.mean([_same(a, b) for a, b in zip(hp, fp)])),
+        "synthetic_agreement_c2f_halving_greedy": float(np.mean([_same(a, b) for a, b in zip(hp, gp)])),
+        "warmup": "one untimed query before each of fast, c2f and c2f halving (c2f on the "
+                  "same queries as fast); greedy has no separate warm-up "
+                  "(the model is warm from the fast queries, the page cache from read_through)",
+        "memory_after": memory_snapshot()}
+
+
+def bench_retrieval_synthetic(cfg: BenchConfig, tmp_root: str | None = None) -> dict:
+    """Fast vs greedy seconds/query over K objects x R references of float16 memmapped features."""
+    from helpers.search.retrieval import model_scorer
+
+    model = _model(cfg.retr_size, cfg.seed, monotone=True).eval()
+    out, c, length = _synthetic_header(cfg, model)
+    need = cfg.retr_objects * max(cfg.retr_refs) * c * length * 2
     folder = Path(tempfile.mkdtemp(prefix="bench_bank_", dir=tmp_root))
     try:
-        free = shutil.disk_usage(folder).free
-        out["disk"] = {"folder": str(folder), "free_bytes": free, "needed_bytes": need,
-                       "margin_bytes": cfg.disk_margin_bytes}
-        r_list = sorted(cfg.retr_refs)
-        if free < need + cfg.disk_margin_bytes:
-            ok = [r for r in r_list if cfg.retr_objects * r * c * length * 2 + cfg.disk_margin_bytes <= free]
-            for r in r_list:
-                if r not in ok:
-                    out["banks"][f"{cfg.retr_objects}x{r}"] = {
-                        "skipped": True, "reason": f"needs {cfg.retr_objects * r * c * length * 2} bytes + "
-                                                   f"{cfg.disk_margin_bytes} margin, only {free} free"}
-            r_list = ok
-            if not ok:
-                return out
-            r_max = max(ok)
-        all_rots = haar_uniform(r_max, seed=cfg.seed)
-        log(f"writing synthetic bank {cfg.retr_objects} x {r_max} "
-            f"({cfg.retr_objects * r_max * c * length * 2 / 1e9:.2f} GB)")
-        w = write_synthetic_bank(folder, cfg.retr_objects, r_max, c, length, all_rots, cfg.seed)
-        bases = w.pop("bases")
-        out["write"] = {k: v for k, v in w.items() if k != "paths"}
-        out["read_through"] = _read_through(w["paths"])
-        log(f"bank written in {w['write_s']:.0f} s, read back at {out['read_through']['gb_per_s']:.2f} GB/s")
-        mms = [np.memmap(p, dtype=np.float16, mode="r", shape=(r_max, c, length)) for p in w["paths"]]
+        r_list = _bank_sizes_that_fit(cfg, out, folder, c, length, need)
+        if not r_list:
+            return out
+        all_rots, bases, mms = _write_and_map_bank(cfg, out, folder, max(r_list), c, length)
         names = [f"obj{o:02d}" for o in range(cfg.retr_objects)]
         scorer = model_scorer(model, "cpu")
-        rng = np.random.default_rng(cfg.seed + 5)
-        n_q = max(cfg.retr_fast_queries, cfg.retr_greedy_queries, cfg.retr_batch_queries)
-        q_obj = rng.integers(0, cfg.retr_objects, n_q)
-        q_rot = haar_uniform(n_q, seed=cfg.seed + 6)
-        queries = [torch.from_numpy(_smooth_features(bases[o], q_rot[i:i + 1], c, length, 1.0, rng)[0])
-                   for i, o in enumerate(q_obj)]
-        warm = torch.from_numpy(_smooth_features(bases[0], haar_uniform(1, seed=99), c, length, 1.0, rng)[0])
+        q_obj, queries, warm = _synthetic_queries(cfg, bases, c, length)
         for r in r_list:
             key = f"{cfg.retr_objects}x{r}"
-            t0 = time.perf_counter()
-            bank = ReferenceBank([m[:r] for m in mms], all_rots[:r], names, k_ac=PAPER_K_AC)
-            anchors_s = time.perf_counter() - t0
-            wait_quiet()
-            t0 = time.perf_counter()
-            bank.anchor_feats(PAPER_K_AC)  # once per bank: anchors gathered into RAM
-            anchor_gather_s = time.perf_counter() - t0
-            fast_cfg = SearchConfig("fast", k_ac=PAPER_K_AC, fps_k=PAPER_FPS_K)
-            fast_search(warm, bank, scorer, fast_cfg)  # warm-up
-            fp, fast = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, fast_cfg)
-            log(f"{key}: fast {fast['s_per_query_median']:.2f} s/query, "
-                f"{fast['comparisons_per_query_median']:.0f} comparisons")
-            wait_quiet()
-            qb = torch.stack(queries[:cfg.retr_batch_queries])
-            with Probe() as pb:
-                bp = search_all(qb, bank, scorer, replace(fast_cfg, query_batch=cfg.retr_query_batch), progress=False)
-            fast_batched = {"n_queries": len(bp), "query_batch": cfg.retr_query_batch,
-                            "wall_s": pb.wall, "s_per_query_mean": pb.wall / len(bp),
-                            "s_per_query_median": statistics.median(p.seconds for p in bp),
-                            "comparisons_per_query_median": statistics.median(p.n_comparisons for p in bp),
-                            "others_cpu_fraction": pb.others,
-                            "same_predictions_as_single_query": float(np.mean(
-                                [a.obj_index == b.obj_index and a.ref_index == b.ref_index
-                                 for a, b in zip(bp, fp)])),
-                            "note": "search_all(method='fast', query_batch): the anchors of query_batch queries "
-                                    "are scored in one many-query pass; each query's seconds = its refinement + "
-                                    "an equal share of its batch's anchor pass; s_per_query_mean = wall / n"}
-            log(f"{key}: fast batched {fast_batched['s_per_query_mean']:.2f} s/query")
-            wait_quiet()
-            c2f_cfg = replace(fast_cfg, method="c2f", coarse_k=C2F_COARSE_K, refine_objects=C2F_REFINE_OBJECTS)
-            fast_search(warm, bank, scorer, c2f_cfg)  # warm-up
-            cp, c2f = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, c2f_cfg)
-            log(f"{key}: c2f {c2f['s_per_query_median']:.3f} s/query, "
-                f"{c2f['comparisons_per_query_median']:.0f} comparisons")
-            wait_quiet()
-            halving_cfg = replace(c2f_cfg, refine_objects=C2F_HALVING_REFINE_OBJECTS, halving=True)
-            fast_search(warm, bank, scorer, halving_cfg)  # warm-up
-            hp, c2fh = _search_timed(fast_search, queries[:cfg.retr_fast_queries], bank, scorer, halving_cfg)
-            log(f"{key}: c2f halving {c2fh['s_per_query_median']:.3f} s/query, "
-                f"{c2fh['comparisons_per_query_median']:.0f} comparisons")
-            wait_quiet()
-            gp, greedy = _search_timed(greedy_search, queries[:cfg.retr_greedy_queries], bank, scorer, group=1024)
-            log(f"{key}: greedy {greedy['s_per_query_median']:.2f} s/query")
-            n_common = min(len(fp), len(gp))
-            agree = [fp[i].obj_index == gp[i].obj_index and fp[i].ref_index == gp[i].ref_index
-                     for i in range(n_common)]
-            correct_obj = [gp[i].obj_index == q_obj[i] for i in range(n_common)]
-            c2f_fast = [_same(a, b) for a, b in zip(cp, fp)]
-            c2f_greedy = [_same(a, b) for a, b in zip(cp, gp)]  # the first len(gp) queries
-            out["banks"][key] = {
-                "n_objects": cfg.retr_objects, "R": r, "pairs_total": cfg.retr_objects * r,
-                "anchors_k": int(len(bank.anchors(PAPER_K_AC))), "bank_build_s": anchors_s,
-                "anchor_gather_s": anchor_gather_s,
-                "fast": fast, "fast_batched": fast_batched, "greedy": greedy,
-                "speedup_greedy_over_fast": greedy["s_per_query_median"] / fast["s_per_query_median"],
-                "speedup_greedy_over_fast_batched": greedy["s_per_query_median"] / fast_batched["s_per_query_mean"],
-                "comparison_ratio_greedy_over_fast": (cfg.retr_objects * r) / fast["comparisons_per_query_median"],
-                "synthetic_agreement_fast_greedy": float(np.mean(agree)) if agree else None,
-                "synthetic_greedy_object_correct": float(np.mean(correct_obj)) if correct_obj else None,
-                "c2f": c2f,
-                "speedup_greedy_over_c2f": greedy["s_per_query_median"] / c2f["s_per_query_median"],
-                "speedup_fast_over_c2f": fast["s_per_query_median"] / c2f["s_per_query_median"],
-                "comparison_ratio_greedy_over_c2f": (cfg.retr_objects * r) / c2f["comparisons_per_query_median"],
-                "synthetic_agreement_c2f_fast": float(np.mean(c2f_fast)) if c2f_fast else None,
-                "synthetic_agreement_c2f_fast_object": float(np.mean([a.obj_index == b.obj_index
-                                                                      for a, b in zip(cp, fp)])) if cp else None,
-                "synthetic_agreement_c2f_greedy": float(np.mean(c2f_greedy)) if c2f_greedy else None,
-                "c2f_agreement_queries": {"fast": len(c2f_fast), "greedy": len(c2f_greedy)},
-                "c2f_halving": c2fh,
-                "speedup_greedy_over_c2f_halving": greedy["s_per_query_median"] / c2fh["s_per_query_median"],
-                "comparison_ratio_greedy_over_c2f_halving": (cfg.retr_objects * r)
-                / c2fh["comparisons_per_query_median"],
-                "synthetic_agreement_c2f_halving_fast": float(np.mean([_same(a, b) for a, b in zip(hp, fp)])),
-                "synthetic_agreement_c2f_halving_greedy": float(np.mean([_same(a, b) for a, b in zip(hp, gp)])),
-                "warmup": "one untimed query before each of fast, c2f and c2f halving (c2f on the "
-                          "same queries as fast); greedy has no separate warm-up "
-                          "(the model is warm from the fast queries, the page cache from read_through)",
-                "memory_after": memory_snapshot()}
+            bank, anchors_s, anchor_gather_s = _build_bank(mms, all_rots, names, r)
+            timings, preds = _time_bank_searches(cfg, key, bank, scorer, queries, warm)
+            out["banks"][key] = _bank_entry(cfg, r, bank, anchors_s, anchor_gather_s, timings, preds, q_obj)
             del bank
         del mms
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     return out
 
-
-# =========================================================================== 5b. real set
-
-def scaled_fast_params(n_refs: int) -> dict:
-    """k_ac and fps_k at the paper's ratios to R (1024 and 256 of 10,000), at least 16 and 8."""
-    return {"k_ac": max(16, round(PAPER_K_AC * n_refs / PAPER_REFS)),
-            "fps_k": max(8, round(PAPER_FPS_K * n_refs / PAPER_REFS))}
-
-
-def scaled_c2f_params(n_refs: int) -> dict:
-    """:func:`scaled_fast_params` plus coarse_k at the ratio 64 / 10,000 to R (at least 8, so the
-    coarse stage still ranks objects by a top-3 mean of several anchors; always < k_ac, whose
-    minimum is 16) and refine_objects = 3 (a number of objects, not of references: not scaled)."""
-    return {**scaled_fast_params(n_refs), "coarse_k": max(8, round(C2F_COARSE_K * n_refs / PAPER_REFS)),
-            "refine_objects": C2F_REFINE_OBJECTS}
-
-
-def bench_real_agreement(cfg: BenchConfig, checkpoint: str | None = None, tmp_root: str | None = None) -> dict:
-    """Fast, coarse-to-fine fast (c2f) and greedy on rendered references and real-like queries:
-    agreement and Rota. Acc."""
-    import torch
-
-    from helpers.core.configs import QueryStyle, RenderConfig, SearchConfig
-    from helpers.data.datasets import ViewSetSpec, render_sets
-    from helpers.data.manifest import load_manifest
-    from helpers.evaluation.metrics import Record, evaluate_predictions
-    from helpers.search.features import encode_views
-    from helpers.search.retrieval import ReferenceBank, fast_search, greedy_search, model_scorer
-
-    size = cfg.retr_size
-    if checkpoint:
-        from helpers.training.train import load_model
-
-        model, _ = load_model(checkpoint, device="cpu")
-        size = model.cfg.image_size
-        model_desc = f"checkpoint {checkpoint}"
-    else:
-        model = _model(size, cfg.seed, monotone=True)
-        model_desc = f"random-init OrientationNet (seed {cfg.seed}) with the monotone fusion readout"
-    model.eval()
-    objects = load_manifest().object_names("train")[:cfg.real_objects]
-    rc = RenderConfig(size=size)
-    specs = ([ViewSetSpec(o, "reference", cfg.real_refs, cfg.seed, rc) for o in objects]
-             + [ViewSetSpec(o, "query", cfg.real_queries, cfg.seed, rc, QueryStyle(), "test") for o in objects])
-    cache = tempfile.mkdtemp(prefix="bench_real_", dir=tmp_root)
-    try:
-        t0 = time.perf_counter()
-        views = render_sets(specs, cache=cache, workers=cfg.real_workers, progress=False)
-        render_s = time.perf_counter() - t0
-        refs, queries = views[:len(objects)], views[len(objects):]
-        log(f"real set rendered in {render_s:.0f} s")
-        t0 = time.perf_counter()
-        feats = [np.concatenate([f.numpy().astype(np.float16) for f in encode_views(model, v.images, 64)])
-                 for v in refs]
-        encode_s = time.perf_counter() - t0
-        q_feats = [torch.cat(list(encode_views(model, v.images, 64))) for v in queries]
-    finally:
-        shutil.rmtree(cache, ignore_errors=True)
-    rots = np.asarray(refs[0].rotations, dtype=np.float64)
-    if not all(np.array_equal(v.rotations, refs[0].rotations) for v in refs):
-        raise RuntimeError("reference rotations differ between objects")
-    scaled = scaled_fast_params(cfg.real_refs)
-    bank = ReferenceBank(feats, rots, objects, k_ac=scaled["k_ac"])
-    scorer = model_scorer(model, "cpu")
-    flat = [(o, qv, qf[i]) for o, (qv, qf) in enumerate(zip(queries, q_feats)) for i in range(len(qf))]
-    scaled_c2f = scaled_c2f_params(cfg.real_refs)
-    fast_cfg, c2f_cfg = SearchConfig("fast", **scaled), SearchConfig("c2f", **scaled_c2f)
-    fast_search(flat[0][2], bank, scorer, fast_cfg)  # warm-up
-    wait_quiet()
-    q_list = [f for _, _, f in flat]
-    gp, greedy = _search_timed(greedy_search, q_list, bank, scorer, group=1024)
-    fp, fast = _search_timed(fast_search, q_list, bank, scorer, fast_cfg)
-    cp, c2f = _search_timed(fast_search, q_list, bank, scorer, c2f_cfg)
-    hp, c2fh = _search_timed(fast_search, q_list, bank, scorer,
-                             replace(c2f_cfg, refine_objects=C2F_HALVING_REFINE_OBJECTS, halving=True))
-
-    # Records need each query's index within its object.
-    idx_in_obj, seen = [], {}
-    for o, _, _ in flat:
-        idx_in_obj.append(seen.get(o, 0))
-        seen[o] = seen.get(o, 0) + 1
-
-    def evaluate(preds) -> dict:
-        recs = [Record(objects[o], p.obj_name, np.asarray(qv.rotations[i], np.float64), p.R_est, qv.symmetries,
-                       f"{objects[o]}:{i}")
-                for (o, qv, _), i, p in zip(flat, idx_in_obj, preds)]
-        _, means = evaluate_predictions(recs, 30.0)
-        return {"rot_acc_pct": means["rot_acc"], "class_acc_pct": means["class_acc"],
-                "median_err_deg": means["median_err_deg"]}
-
-    same_ref = [a.obj_index == b.obj_index and a.ref_index == b.ref_index for a, b in zip(fp, gp)]
-    same_obj = [a.obj_index == b.obj_index for a, b in zip(fp, gp)]
-    n_total = len(objects) * cfg.real_refs
-    return {"image_size": size, "objects": objects, "refs_per_object": cfg.real_refs,
-            "queries_per_object": cfg.real_queries, "n_queries": len(flat), "model": model_desc,
-            "query_style": "QueryStyle() defaults, test background photos",
-            "render_s": render_s, "render_workers": cfg.real_workers,
-            "encode_s": encode_s, "encode_refs_per_s": n_total / encode_s,
-            "fast_params": {**scaled, "schedule": "converge", "top_anchors": 3,
-                            "why": "paper ratios k_ac/R = 1024/10000 and fps_k/R = 256/10000; with the "
-                                   "default k_ac=1024 >= R every reference would be an anchor and fast "
-                                   "would trivially equal greedy"},
-            "c2f_params": {**scaled_c2f, "schedule": "converge", "top_anchors": 3,
-                           "why": "k_ac and fps_k as fast; coarse_k at the ratio 64/10000 to R, at least 8"},
-            "greedy": {**greedy, **evaluate(gp)}, "fast": {**fast, **evaluate(fp)}, "c2f": {**c2f, **evaluate(cp)},
-            "agreement_c2f_fast_same_reference": float(np.mean([_same(a, b) for a, b in zip(cp, fp)])),
-            "agreement_c2f_greedy_same_reference": float(np.mean([_same(a, b) for a, b in zip(cp, gp)])),
-            "agreement_c2f_greedy_same_object": float(np.mean([a.obj_index == b.obj_index for a, b in zip(cp, gp)])),
-            "speedup_greedy_over_c2f": greedy["s_per_query_median"] / c2f["s_per_query_median"],
-            "c2f_halving": {**c2fh, **evaluate(hp)},
-            "agreement_c2f_halving_fast_same_reference": float(np.mean([_same(a, b) for a, b in zip(hp, fp)])),
-            "agreement_c2f_halving_greedy_same_reference": float(np.mean([_same(a, b) for a, b in zip(hp, gp)])),
-            "speedup_greedy_over_c2f_halving": greedy["s_per_query_median"] / c2fh["s_per_query_median"],
-            "agreement_same_reference": float(np.mean(same_ref)),
-            "agreement_same_object": float(np.mean(same_obj)),
-            "speedup_greedy_over_fast": greedy["s_per_query_median"] / fast["s_per_query_median"],
-            "rot_acc_note": "Rota. Acc. = category right and symmetry-aware geodesic error < 30 deg, "
-                            "averaged per object then over objects (helpers.evaluation.metrics)"}
 
 
 # =========================================================================== 6. cache size

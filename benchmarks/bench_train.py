@@ -15,7 +15,7 @@ from __future__ import annotations
 import inspect
 import math
 import statistics
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from timing import Probe, gate, log, measure, wait_quiet
@@ -219,26 +219,21 @@ def synthetic_train_views(n_objects: int, n_refs: int, n_queries: int, size: int
     return refs, queries
 
 
-def bench_train_ab(cfg: BenchConfig) -> dict:
-    """Training step A (git 1c2d2ee) vs B (today) at ``train_ab_size``, and data vs compute per step.
+def _ab_batches(cfg: BenchConfig) -> tuple[Any, np.ndarray, np.random.Generator, list[tuple]]:
+    """(batcher, order, rng, batches) for the training A/B at ``train_ab_size``.
 
-    A and B run in this process on the same batches (built once by
-    ``helpers.training.batches._Batcher`` from a synthetic set, as ``train()`` builds them)
-    from the same initial weights and seed, in interleaved blocks A, B, A, B, ...
-    of ``train_ab_steps`` steps each (fresh Adam per block), so drift of the
-    machine's speed hits both alike. The losses after N steps must agree to
-    float rounding (the two box filters differ by ~1e-7 relative).
+    ``batcher`` is a ``helpers.training.batches._Batcher`` over a synthetic set,
+    ``order`` the pick stream of ``(train_ab_steps + train_ab_data_repeats + 1) *
+    train_ab_batch`` indices, ``rng`` the generator the batcher draws from (its
+    state carries on into :func:`_ab_data_side`), and ``batches`` the
+    ``train_ab_steps`` batches ``(images (3B, 3, S, S) float tensor, q_obj, q_rot,
+    r_obj, r_rot)`` that every A and B block trains on.
     """
-    import copy
-
-    import torch
-
     from helpers.core.configs import AugmentConfig
     from helpers.net.model import images_to_tensor
     from helpers.training.batches import _Batcher, _order_stream
 
     size, b, n_steps = cfg.train_ab_size, cfg.train_ab_batch, cfg.train_ab_steps
-    step, which = _train_step_fn()
     refs, queries = synthetic_train_views(cfg.train_ab_objects, cfg.train_ab_refs_per_object,
                                           cfg.train_ab_queries_per_object, size, cfg.train_ab_context, cfg.seed)
     names = sorted(refs)
@@ -252,8 +247,20 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
         return images_to_tensor(imgs), q_obj, q_rot, r_obj, r_rot
 
     batches = [make(i) for i in range(n_steps)]  # the SAME batches for every A and B block
+    return batcher, order, rng, batches
 
-    # ---- data side: what train() does per step before train_step (batch assembly + augmentation, to tensor)
+
+def _ab_data_side(cfg: BenchConfig, batcher, order: np.ndarray, rng: np.random.Generator) -> tuple[dict, dict]:
+    """(data, parts): what ``train()`` does per step before ``train_step`` (batch assembly and augmentation,
+    then to tensor), timed by :func:`timing.measure`.
+
+    ``data`` is measure's dict (seconds per step); ``parts`` holds per-call seconds,
+    ``{"make_s": [...], "to_tensor_s": [...]}``, the warm-up call first.
+    """
+    from helpers.net.model import images_to_tensor
+
+    b, n_steps = cfg.train_ab_batch, cfg.train_ab_steps
+    n_data = cfg.train_ab_data_repeats + 1
     calls = [0]
     parts: dict[str, list] = {"make_s": [], "to_tensor_s": []}
 
@@ -269,19 +276,32 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
 
     wait_quiet()
     data = measure(data_step, cfg.train_ab_data_repeats, 1)
+    return data, parts
 
-    # ---- compute side, A vs B
-    model = _model(size, cfg.seed).train()
-    init = copy.deepcopy(model.state_dict())
 
+def _ab_block(model, init: dict, step, batches: list[tuple], seed: int, variant: str) -> tuple[Probe, list[float]]:
+    """(probe, losses): one block of ``len(batches)`` training steps of ``variant`` ("A" or "B")
+    from the weights ``init`` with a fresh Adam; ``probe.wall`` is the block's seconds."""
+    import torch
+
+    model.load_state_dict(init)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    torch.manual_seed(seed)  # dropout draws
+    with _Variant(variant):
+        with Probe() as p:
+            losses = [step(model, opt, *bt) for bt in batches]
+    return p, losses
+
+
+def _ab_interleaved_runs(cfg: BenchConfig, model, init: dict, step, batches: list[tuple]) -> tuple[dict, int, float]:
+    """(runs, n_retried, threshold): ``train_ab_repeats`` timed (probe, losses) blocks per variant.
+
+    ``runs`` maps "A" and "B" to their blocks in run order, after
+    ``train_ab_warmup`` untimed A, B pairs; ``n_retried`` counts pairs re-run
+    because other processes used at least ``threshold`` (a fraction of all CPUs).
+    """
     def block(variant: str) -> tuple[Probe, list[float]]:
-        model.load_state_dict(init)
-        opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-        torch.manual_seed(cfg.seed)  # dropout draws
-        with _Variant(variant):
-            with Probe() as p:
-                losses = [step(model, opt, *bt) for bt in batches]
-        return p, losses
+        return _ab_block(model, init, step, batches, cfg.seed, variant)
 
     for _ in range(cfg.train_ab_warmup):
         block("A")
@@ -300,34 +320,33 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
             pair = {v: block(v) for v in ("A", "B")}
         for v in ("A", "B"):
             runs[v].append(pair[v])
-    n_img = 3 * b * n_steps
+    return runs, n_retried, threshold
 
-    def summary(v: str) -> dict:
-        walls = [p.wall for p, _ in runs[v]]
-        known = [p.others for p, _ in runs[v] if p.others is not None]
-        med = statistics.median(walls)
-        return {"block_s_all": walls, "block_s_median": med, "s_per_step_median": med / n_steps,
-                "images_per_s": n_img / med, "others_cpu_fraction": statistics.median(known) if known else None,
-                "contended_blocks": sum(1 for o in known if o >= threshold),
-                "losses": runs[v][0][1], "loss_after_n_steps": runs[v][0][1][-1]}
 
-    out_a, out_b = summary("A"), summary("B")
-    all_losses = {v: [ls for _, ls in runs[v]] for v in runs}
-    if not all(math.isfinite(x) for v in all_losses.values() for ls in v for x in ls):
-        raise RuntimeError(f"bench_train_ab: non-finite loss {all_losses}")
+def _ab_summary(blocks: list[tuple[Probe, list[float]]], n_steps: int, n_img: int, threshold: float) -> dict:
+    """One variant's block seconds (all, median), seconds per step, images/s, contention and first-block losses."""
+    walls = [p.wall for p, _ in blocks]
+    known = [p.others for p, _ in blocks if p.others is not None]
+    med = statistics.median(walls)
+    return {"block_s_all": walls, "block_s_median": med, "s_per_step_median": med / n_steps,
+            "images_per_s": n_img / med, "others_cpu_fraction": statistics.median(known) if known else None,
+            "contended_blocks": sum(1 for o in known if o >= threshold),
+            "losses": blocks[0][1], "loss_after_n_steps": blocks[0][1][-1]}
 
-    def max_diff(xs: list[list[float]], ys: list[list[float]]) -> float:
-        return max(abs(x - y) for lx, ly in zip(xs, ys) for x, y in zip(lx, ly))
 
-    r = model.cfg.norm_window
-    out_a["code"] = (f"git {AB_BASE_COMMIT}: preprocess box filter = one {r}x{r} "
-                     "F.avg_pool2d(padded, window, stride=1) for mu and one for the mean of squares "
-                     "(helpers.net.model._box_mean monkeypatched for the A blocks, restored after)")
-    out_b["code"] = ("working tree: helpers.net.model._box_mean, separable 1 x r then r x 1 stride-1 average pools "
-                     "(measured_sources has the hashes)")
+def _max_diff(xs: list[list[float]], ys: list[list[float]]) -> float:
+    """The largest |x - y| over paired loss lists."""
+    return max(abs(x - y) for lx, ly in zip(xs, ys) for x, y in zip(lx, ly))
 
-    # ---- the changed function alone: preprocess of one batch, A vs B interleaved
-    x = batches[0][0]
+
+def _ab_preprocess(cfg: BenchConfig, model, x, compute_s: float) -> dict:
+    """The changed function alone: ``model.preprocess`` of one batch ``x`` (3B, 3, S, S), A vs B interleaved.
+
+    Returns seconds per call (medians and all), A's over B's, the largest
+    output difference, and B's share of ``compute_s`` (B's seconds per training step).
+    """
+    import torch
+
     pp: dict[str, list] = {"A": [], "B": []}
     outs = {}
     with torch.no_grad():
@@ -340,7 +359,69 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
                             model.preprocess(x)
                 pp[v].append(p.wall / cfg.train_ab_preprocess_calls)
     pp_a, pp_b = statistics.median(pp["A"]), statistics.median(pp["B"])
+    return {"batch": list(x.shape), "calls_per_timing": cfg.train_ab_preprocess_calls,
+            "A_s_median": pp_a, "B_s_median": pp_b, "speedup_A_over_B": pp_a / pp_b,
+            "A_s_all": pp["A"], "B_s_all": pp["B"],
+            "max_abs_diff": float((outs["A"] - outs["B"]).abs().max()),
+            "share_of_B_step": pp_b / compute_s}
+
+
+def _ab_breakdown(cfg: BenchConfig, data: dict, parts: dict, compute_s: float) -> dict:
+    """Data vs compute seconds per training step (``data`` and ``parts`` from :func:`_ab_data_side`)."""
+    data_s = data["median_s"]
+    return {
+        "data_s_per_step": data_s, "make_s_median": statistics.median(parts["make_s"][1:]),
+        "to_tensor_s_median": statistics.median(parts["to_tensor_s"][1:]),  # [1:]: not the warm-up
+        "compute_s_per_step": compute_s, "data_fraction": data_s / (data_s + compute_s),
+        "data": data,
+        "synthetic_set": {"objects": cfg.train_ab_objects, "refs_per_object": cfg.train_ab_refs_per_object,
+                          "queries_per_object": cfg.train_ab_queries_per_object,
+                          "query_side": int(round(cfg.train_ab_size * cfg.train_ab_context)), "masks": True,
+                          "augment": "AugmentConfig() defaults", "random_ref": "own"},
+        "note": "data = helpers.training.batches._Batcher.make (query views with context, augmentation incl. in-plane "
+                "re-crop from the mask, nearest-rotation positives, random references) + images_to_tensor, "
+                "as train() does before each step; compute = B's train_step median over the A/B blocks; "
+                "train() runs them one after the other, so a step costs about their sum"}
+
+
+def _ab_code(r: int) -> tuple[str, str]:
+    """(A's, B's) description of the box filter each variant runs, for a window of ``r`` pixels."""
+    return (f"git {AB_BASE_COMMIT}: preprocess box filter = one {r}x{r} "
+            "F.avg_pool2d(padded, window, stride=1) for mu and one for the mean of squares "
+            "(helpers.net.model._box_mean monkeypatched for the A blocks, restored after)",
+            "working tree: helpers.net.model._box_mean, separable 1 x r then r x 1 stride-1 average pools "
+            "(measured_sources has the hashes)")
+
+
+def bench_train_ab(cfg: BenchConfig) -> dict:
+    """Training step A (git 1c2d2ee) vs B (today) at ``train_ab_size``, and data vs compute per step.
+
+    A and B run in this process on the same batches (built once by
+    ``helpers.training.batches._Batcher`` from a synthetic set, as ``train()`` builds them)
+    from the same initial weights and seed, in interleaved blocks A, B, A, B, ...
+    of ``train_ab_steps`` steps each (fresh Adam per block), so drift of the
+    machine's speed hits both alike. The losses after N steps must agree to
+    float rounding (the two box filters differ by ~1e-7 relative).
+    """
+    import copy
+
+    size, b, n_steps = cfg.train_ab_size, cfg.train_ab_batch, cfg.train_ab_steps
+    step, which = _train_step_fn()
+    batcher, order, rng, batches = _ab_batches(cfg)
+    data, parts = _ab_data_side(cfg, batcher, order, rng)
+
+    model = _model(size, cfg.seed).train()
+    init = copy.deepcopy(model.state_dict())
+    runs, n_retried, threshold = _ab_interleaved_runs(cfg, model, init, step, batches)
+    n_img = 3 * b * n_steps
+    out_a, out_b = _ab_summary(runs["A"], n_steps, n_img, threshold), _ab_summary(runs["B"], n_steps, n_img, threshold)
+    all_losses = {v: [ls for _, ls in runs[v]] for v in runs}
+    if not all(math.isfinite(x) for v in all_losses.values() for ls in v for x in ls):
+        raise RuntimeError(f"bench_train_ab: non-finite loss {all_losses}")
+    out_a["code"], out_b["code"] = _ab_code(model.cfg.norm_window)
+
     compute_s = out_b["s_per_step_median"]
+    preprocess = _ab_preprocess(cfg, model, batches[0][0], compute_s)
     pair_ratios = [pa.wall / pb.wall for (pa, _), (pb, _) in zip(runs["A"], runs["B"])]  # = B images/s / A's
     data_s = data["median_s"]
     res = {
@@ -350,27 +431,11 @@ def bench_train_ab(cfg: BenchConfig) -> dict:
         "step_fn": which, "A": out_a, "B": out_b,
         "ratio_images_per_s_B_over_A": out_b["images_per_s"] / out_a["images_per_s"],
         "ratio_B_over_A_per_pair": pair_ratios, "ratio_B_over_A_pair_median": statistics.median(pair_ratios),
-        "loss_max_abs_diff_A_vs_B": max_diff(all_losses["A"], all_losses["B"]),
-        "loss_max_abs_diff_A_repeats": max_diff(all_losses["A"], all_losses["A"][:1] * len(all_losses["A"])),
-        "loss_max_abs_diff_B_repeats": max_diff(all_losses["B"], all_losses["B"][:1] * len(all_losses["B"])),
-        "preprocess": {"batch": list(x.shape), "calls_per_timing": cfg.train_ab_preprocess_calls,
-                       "A_s_median": pp_a, "B_s_median": pp_b, "speedup_A_over_B": pp_a / pp_b,
-                       "A_s_all": pp["A"], "B_s_all": pp["B"],
-                       "max_abs_diff": float((outs["A"] - outs["B"]).abs().max()),
-                       "share_of_B_step": pp_b / compute_s},
-        "breakdown": {
-            "data_s_per_step": data_s, "make_s_median": statistics.median(parts["make_s"][1:]),
-            "to_tensor_s_median": statistics.median(parts["to_tensor_s"][1:]),  # [1:]: not the warm-up
-            "compute_s_per_step": compute_s, "data_fraction": data_s / (data_s + compute_s),
-            "data": data,
-            "synthetic_set": {"objects": cfg.train_ab_objects, "refs_per_object": cfg.train_ab_refs_per_object,
-                              "queries_per_object": cfg.train_ab_queries_per_object,
-                              "query_side": int(round(size * cfg.train_ab_context)), "masks": True,
-                              "augment": "AugmentConfig() defaults", "random_ref": "own"},
-            "note": "data = helpers.training.batches._Batcher.make (query views with context, augmentation incl. in-plane "
-                    "re-crop from the mask, nearest-rotation positives, random references) + images_to_tensor, "
-                    "as train() does before each step; compute = B's train_step median over the A/B blocks; "
-                    "train() runs them one after the other, so a step costs about their sum"},
+        "loss_max_abs_diff_A_vs_B": _max_diff(all_losses["A"], all_losses["B"]),
+        "loss_max_abs_diff_A_repeats": _max_diff(all_losses["A"], all_losses["A"][:1] * len(all_losses["A"])),
+        "loss_max_abs_diff_B_repeats": _max_diff(all_losses["B"], all_losses["B"][:1] * len(all_losses["B"])),
+        "preprocess": preprocess,
+        "breakdown": _ab_breakdown(cfg, data, parts, compute_s),
         "note": "same process, same initial weights (state_dict copy), same seed, same batches for every block; "
                 "B is the working tree, which may hold uncommitted changes besides the box filter (e.g. an input "
                 "range check in encode); those run in both A and B, so the ratio isolates the box filter"}
