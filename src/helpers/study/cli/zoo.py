@@ -1,15 +1,17 @@
 """The zoo's command line: ``python -m helpers.study.cli.zoo``
-``train NAME [NAME ...] [--publish]`` | ``snapshot NAME`` | ``list`` | ``verify`` | ``speeds``."""
+``train NAME [NAME ...] [--publish] [--until HH:MM | --minutes N]`` | ``snapshot NAME`` | ``list`` | ``verify`` | ``speeds``."""
 
 from __future__ import annotations
 
 from dataclasses import replace
 
 from ..zoo import RECIPES, progress, publish, recipe, refresh_speeds, snapshot, train_recipe, verify
+from .train_until import deadline_from, train_until
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m helpers.study.cli.zoo train NAME [NAME ...] [--publish]`` | ``snapshot NAME`` | ``list`` | ``verify``
+    """``python -m helpers.study.cli.zoo train NAME [NAME ...] [--publish] [--until HH:MM | --minutes N]`` |
+    ``snapshot NAME`` | ``list`` | ``verify``
     | ``speeds``."""
     import argparse
 
@@ -21,6 +23,9 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--device", default="auto")
     t.add_argument("--recipes", default=str(RECIPES), help="recipe file (default: the long preset's zoo.yaml)")
     t.add_argument("--workers", type=int, default=0, help="rendering processes (default: the recipe's)")
+    t.add_argument("--until", default="", help="stop at the last epoch boundary before this local time (HH:MM) "
+                   "and copy the checkpoint to models/checkpoints/ (resume later with zoo train NAME)")
+    t.add_argument("--minutes", type=float, default=0.0, help="as --until, this many minutes from now")
     s = sub.add_parser("snapshot", help="commit-ready copy of an unfinished run's last.pt")
     s.add_argument("names", nargs="+")
     s.add_argument("--recipes", default=str(RECIPES), help="recipe file (default: the long preset's zoo.yaml)")
@@ -29,11 +34,17 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("speeds", help="rewrite each entry's images/s from its history (median over quiet epochs)")
     a = ap.parse_args(argv)
     if a.cmd == "train":
+        try:
+            deadline = deadline_from(a.until, a.minutes) if a.until or a.minutes else None
+        except ValueError as e:
+            ap.error(str(e))
         for name in a.names:
             r = recipe(name, path=a.recipes, device=a.device)
             if a.workers:  # rendering processes do not change the pixels (not part of any cache key)
                 r = replace(r, data=replace(r.data, workers=a.workers))
-            model, run, info, data = train_recipe(r)
+            if deadline is not None and train_until(r, deadline, a.recipes, a.device, a.workers) != "finished":
+                return 0  # the deadline came: the later names wait for the next session
+            model, run, info, data = train_recipe(r)  # with a deadline: loads the run the child finished
             print(f"{name}: trained in {run}")
             if a.publish:
                 print(f"{name}: published {publish(r, run, data)}")
