@@ -80,9 +80,10 @@ def test_bench_tiny_run_writes_complete_json(tmp_path):
     head = 2 * 384 * 128 + 128 + 128 + 2 * 128 + 1 + 1
     assert f["flops_per_pair"] == 7 * C * L + 9 * L + head
     for q in ("Q1", "Q2"):
-        # Present and positive only: the share of the GEMM rate is a ratio of two timings taken at different
-        # moments, so a busy machine moves it (4.45 seen beside a training run); the FLOP count above is exact.
+        # A loose bound only: the share of the GEMM rate is a ratio of two timings taken at different moments, so a
+        # busy machine moves it (4.45 seen beside a training run); far above 1 the FLOP count or a timing is wrong.
         _positive(f[q], "pair_scores_per_s", "achieved_gflops_per_s", "fraction_of_gemm")
+        assert f[q]["fraction_of_gemm"] < 20
 
     rs = res["retrieval_synthetic"]
     assert rs["L_matches_encode"] is True

@@ -63,7 +63,7 @@ def test_a_table_of_older_scoring_code_is_not_read_back(tmp_path, monkeypatch):
     data, hog = _data(tmp_path), HogModel()
     queries = {"bunny": data.test_q["bunny"]}
     names = {p.name for p in eval_cache.scoring_sources()}
-    assert {"search", "pipeline.py", "metrics.py", "rotations.py"} <= names
+    assert {"search", "fusion_kernel.cpp", "metrics.py", "rotations.py"} <= names
     src = tmp_path / "scoring.py"
     src.write_text("y = 1\n")
     monkeypatch.setattr(eval_cache, "scoring_sources", lambda: [src])

@@ -109,9 +109,11 @@ def test_fingerprint_changes_with_the_encoding_code(tmp_path, monkeypatch):
     """Cached features of older encoding code are never read back: the key covers the encoder's source."""
     from helpers.net.model import OrientationNet
     from helpers.search import features
-    net = features.encoder_sources(OrientationNet(ModelConfig()))
-    assert net and net[0].name == "net" and net[0].is_dir()  # the backbone and kernel beside the model count
-    assert features.encoder_sources(FakeModel())[0].name == "test_features.py"
+    net = {p.name for p in features.encoder_sources(OrientationNet(ModelConfig()))}
+    # the model and its backbone, preprocessing, precision and this cache; not the scoring kernel nor torch's code
+    assert {"model.py", "backbone.py", "local_norm.py", "precision.py", "features.py"} <= net
+    assert "fusion_kernel.py" not in net and "module.py" not in net
+    assert "test_features.py" in {p.name for p in features.encoder_sources(FakeModel())}
     src = tmp_path / "encoder.py"
     src.write_text("x = 1\n")
     monkeypatch.setattr(features, "encoder_sources", lambda model: [src])
@@ -120,12 +122,26 @@ def test_fingerprint_changes_with_the_encoding_code(tmp_path, monkeypatch):
     assert model_fingerprint(FakeModel()) != before
 
 
+def test_fingerprint_covers_the_runtime_precision_and_a_model_defined_in_a_notebook():
+    """bf16 and float32 encodings of the same weights are different features; a class without a source file
+    (a notebook's, ``python -c``) still gets a key."""
+    from helpers.net.model import OrientationNet
+    torch.manual_seed(0)
+    m = OrientationNet(ModelConfig())
+    fp32 = model_fingerprint(m)
+    m.precision = "bf16"
+    assert model_fingerprint(m) != fp32
+    Notebook = type("Notebook", (FakeModel,), {"__module__": "__main__"})
+    assert len(model_fingerprint(Notebook())) == 16
+
+
 def test_source_digest_reads_what_files_say(tmp_path):
     """A folder counts by its .py and .cpp files; the digest changes with a file's bytes, not its mtime."""
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "a.py").write_text("a = 1\n")
     (tmp_path / "pkg" / "k.cpp").write_text("int k;\n")
     (tmp_path / "pkg" / "notes.txt").write_text("ignored\n")
+    (tmp_path / "pkg" / ".#a.py").symlink_to(tmp_path / "gone")  # an editor's lock: hidden and dangling
     d = source_digest([tmp_path / "pkg"])
     (tmp_path / "pkg" / "notes.txt").write_text("changed\n")
     (tmp_path / "pkg" / "a.py").touch()

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import os
 from pathlib import Path
 
 import pytest
@@ -14,39 +13,41 @@ from helpers.study.cli import train_until as tu
 
 
 class FakeChild:
-    """A training process as watch() sees it: it writes one history entry per ``epoch_s`` seconds of the fake
-    clock and exits after ``epochs`` epochs (+ ``finish_s`` seconds)."""
+    """A training process as watch() sees it: epoch ``e`` lasts ``epoch_s[e]`` seconds of the fake clock (one number:
+    all alike) and is recorded in ``history`` as it ends; the process exits ``finish_s`` seconds after the last."""
 
-    def __init__(self, history: Path, clock: list[float], epochs: int, epoch_s: float, finish_s: float = 2.0):
-        self.history, self.clock, self.epochs, self.epoch_s, self.finish_s = history, clock, epochs, epoch_s, finish_s
-        self.written, self.terminated, self.start = 0, False, clock[0]
+    def __init__(self, history: Path, clock: list[float], epochs: int, epoch_s, finish_s: float = 2.0):
+        lengths = list(epoch_s) if isinstance(epoch_s, (list, tuple)) else [epoch_s] * epochs
+        self.ends = [clock[0] + sum(lengths[:e + 1]) for e in range(epochs)]
+        self.history, self.clock, self.epochs, self.finish_s = history, clock, epochs, finish_s
+        self.written, self.terminated = 0, False
 
     def step(self) -> None:
-        """Write the entries of every epoch that has ended by now (the fake clock)."""
-        while self.written < self.epochs and self.clock[0] >= self.start + (self.written + 1) * self.epoch_s:
-            self.written += 1
-            entries = [{"epoch": e + 1, "seconds": self.epoch_s * 0.9} for e in range(self.written)]
-            self.history.write_text(json.dumps({"history": entries}))
-            self.clock[0] += 0.001  # a distinct modification time per write on any file system clock
-            os.utime(self.history, (self.clock[0], self.clock[0]))
+        """Record every epoch that has ended by now (the fake clock)."""
+        n = sum(1 for t in self.ends if t <= self.clock[0])
+        if n > self.written:
+            self.written = n
+            self.history.write_text(json.dumps({"history": [{"epoch": e + 1, "seconds": 90.0} for e in range(n)]}))
 
     def poll(self):
         if self.terminated:
-            return -15
-        done = self.written == self.epochs and self.clock[0] >= self.start + self.epochs * self.epoch_s + self.finish_s
-        return 0 if done else None
+            return -2
+        return 0 if self.clock[0] >= self.ends[-1] + self.finish_s else None
+
+    def send_signal(self, sig):
+        self.terminated = True
 
     def terminate(self):
         self.terminated = True
 
     def wait(self, timeout=None):
-        return -15
+        return -2
 
     def kill(self):
         self.terminated = True
 
 
-def _watch(tmp_path: Path, epochs: int, epoch_s: float, deadline_after: float) -> tuple[str, FakeChild]:
+def _watch(tmp_path: Path, epochs: int, epoch_s, deadline_after: float) -> tuple[str, FakeChild]:
     clock = [1000.0]
     child = FakeChild(tmp_path / "history.json", clock, epochs, epoch_s)
 
@@ -70,9 +71,30 @@ def test_a_run_that_finishes_before_the_deadline_is_left_to_finish(tmp_path):
     assert how == "finished" and not child.terminated and child.written == 3
 
 
+def test_the_longest_epoch_seen_decides(tmp_path):
+    """Epochs that validate take longer: the estimate is the longest interval between two boundaries."""
+    # boundaries at 100, 260, 360: after 360 the longest epoch (160 s) would end at 520, after the deadline (500)
+    how, child = _watch(tmp_path, epochs=10, epoch_s=[100.0, 160.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0,
+                                                      100.0, 100.0], deadline_after=500.0)
+    assert how == "stopped" and child.written == 3
+
+
 def test_the_deadline_stops_a_first_epoch_that_cannot_end_in_time(tmp_path):
     how, child = _watch(tmp_path, epochs=10, epoch_s=100.0, deadline_after=50.0)
     assert how == "deadline" and child.terminated and child.written == 0
+
+
+def test_a_run_past_its_last_epoch_is_never_stopped(tmp_path):
+    """Its history already holds every epoch (it is writing done.json): even past the deadline it finishes."""
+    clock = [1000.0]
+    child = FakeChild(tmp_path / "history.json", clock, 2, [-20.0, 10.0])  # both epochs ended before the watch
+    child.step()
+
+    def sleep(s: float) -> None:
+        clock[0] += s
+
+    assert tu.watch(child, child.history, 999.0, 2, poll_s=1.0, clock=lambda: clock[0], sleep=sleep) == "finished"
+    assert not child.terminated
 
 
 def test_a_failing_child_is_an_error(tmp_path):

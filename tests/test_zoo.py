@@ -108,7 +108,7 @@ def test_recipe_trains_resumes_from_committed_checkpoint_publishes_and_refuses_d
     r1 = _recipes(tmp_path, 1, str(tmp_path / "cacheA"))["tiny"]
     _, run1, _, _ = zoo.train_recipe(r1, zoo_dir=zdir)
     zoo.snapshot(r1, zoo_dir=zdir)
-    assert (zdir / "checkpoints" / "tiny.last.pt").exists()
+    assert (zdir / "checkpoints" / "tiny.last.pt").exists() and (zdir / "checkpoints" / "tiny.best.pt").exists()
     # Another machine (empty cache, other precision), longer budget: resumes from the committed checkpoint.
     from dataclasses import replace
 
@@ -119,6 +119,13 @@ def test_recipe_trains_resumes_from_committed_checkpoint_publishes_and_refuses_d
     assert [h["epoch"] for h in hist] == [1, 2] and [h["precision"] for h in hist] == ["fp32", "bf16"]
     first = torch.load(run1 / "last.pt", weights_only=True)["history"][0]
     assert hist[0]["train_loss"] == first["train_loss"]  # epoch 1 came from the checkpoint, not retrained
+    best = torch.load(run2 / "best.pt", weights_only=True)
+    assert best["epoch"] == info["history"]["best_epoch"]  # epoch 1's weights came along when it stays the best
+    # A run behind the committed checkpoint never replaces it (cacheA is at step 2, the committed one now too).
+    torch.save({**torch.load(zdir / "checkpoints" / "tiny.last.pt", weights_only=True), "global_step": 9},
+               zdir / "checkpoints" / "tiny.last.pt")
+    with pytest.raises(ValueError, match="further than this run"):
+        zoo.snapshot(r1, zoo_dir=zdir)
 
     wfile = zoo.publish(r2, run2, data, zoo_dir=zdir)
     e = zoo.entry("tiny", zdir)

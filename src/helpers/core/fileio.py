@@ -68,18 +68,21 @@ def stable_hash(obj: Any, n: int = 16) -> str:
 
 
 def source_digest(paths: list[str | os.PathLike], n: int = 16) -> str:
-    """Short hex sha256 of the bytes of the source files ``paths`` (a folder: its ``*.py`` and ``*.cpp`` files,
-    not recursively), in sorted order, with their names.
+    """Short hex sha256 of the bytes of the source files ``paths`` (a folder: its regular ``*.py`` and ``*.cpp``
+    files, not hidden ones such as an editor's ``.#x.py`` lock, not recursively), each with its folder/file name,
+    in the order of those names.
 
     Cache keys take it so that an entry computed by older code is never read back after that code changed
-    (what a file says, not its modification time: a fresh clone of the same revision gets the same digest)."""
-    files: list[Path] = []
+    (what a file says, not its modification time or where the clone lies: two clones of one revision agree)."""
+    files: dict[str, Path] = {}
     for p in map(Path, paths):
-        files += sorted(q for q in p.iterdir() if q.suffix in (".py", ".cpp")) if p.is_dir() else [p]
+        for f in (sorted(p.iterdir()) if p.is_dir() else [p]):
+            if f.suffix in (".py", ".cpp") and f.is_file() and not f.name.startswith("."):
+                files[f"{f.parent.name}/{f.name}"] = f
     h = hashlib.sha256()
-    for f in sorted(set(files)):
-        h.update(f"{f.parent.name}/{f.name}\0".encode())
-        h.update(f.read_bytes())
+    for name in sorted(files):
+        h.update(f"{name}\0".encode())
+        h.update(files[name].read_bytes())
     return h.hexdigest()[:n]
 
 

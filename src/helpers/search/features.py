@@ -93,38 +93,49 @@ def encode_views(model: Any, images: np.ndarray, batch: int = 64, device: str | 
 
 
 def _config_of(model: Any) -> Any:
-    cfg = getattr(model, "config", None)
+    """What configures ``model``'s encoding besides its weights: ``config`` or ``cfg`` (dict or dataclass) and the
+    runtime ``precision`` it encodes in (bf16 and float32 features differ)."""
+    cfg = getattr(model, "config", None) or getattr(model, "cfg", None)
     if dataclasses.is_dataclass(cfg) and not isinstance(cfg, type):
         cfg = dataclasses.asdict(cfg)
-    return cfg
+    precision = getattr(model, "precision", None)
+    return cfg if precision is None else {"config": cfg, "precision": precision}
+
+
+def _source_of(cls: type) -> Path | None:
+    """The file that defines ``cls``; None for torch's and Python's own classes and for a class defined in a
+    notebook or ``python -c`` (no file)."""
+    if cls.__module__.split(".")[0] in ("builtins", "torch", "typing", "abc"):
+        return None
+    try:
+        f = Path(inspect.getsourcefile(cls) or "")
+    except (TypeError, OSError):
+        return None
+    return f if f.is_file() else None
 
 
 def encoder_sources(model: Any) -> list[Path]:
-    """The source files that turn images into ``model``'s features: its class's module (for the network, the
-    whole ``helpers/net`` folder, since its model calls the backbone and fused kernel beside it) and the shared
-    preprocessing and precision rules. Empty for a class whose source cannot be found (defined in a notebook)."""
-    try:
-        f = Path(inspect.getsourcefile(type(model)) or "")
-    except TypeError:
-        return []
-    if not f.is_file():
-        return []
-    return [f.parent if f.parent.name == "net" else f, Path(local_norm.__file__), Path(precision.__file__)]
+    """The source files that turn images into ``model``'s features: those defining its class and base classes,
+    and (a torch module) every submodule's class (the network's backbone), the shared preprocessing and
+    precision rules, and this module (how images reach the model, how features are stored)."""
+    classes = list(type(model).__mro__) + [type(m) for m in (model.modules() if hasattr(model, "modules") else [])]
+    found = {f for f in map(_source_of, classes) if f is not None}
+    return sorted(found) + [Path(local_norm.__file__), Path(precision.__file__), Path(__file__)]
 
 
 def model_fingerprint(model: Any, n: int = 16) -> str:
-    """Short hex sha256 of the model's class, config, state_dict bytes and encoding code (:func:`encoder_sources`).
+    """Short hex sha256 of the model's class, configuration (:func:`_config_of`), state_dict bytes and encoding
+    code (:func:`encoder_sources`).
 
     Two models with the same weights and config get the same key, so their
     reference features can be shared; any weight change gives a new key, and so
     does a change to the code that encodes (cached features of older code are
-    never read back). ``model.config`` (dict or dataclass; optional) must be JSON-serialisable.
+    never read back). ``model.config`` / ``model.cfg`` (dict or dataclass; optional) must be JSON-serialisable.
     """
     h = hashlib.sha256()
     cls = type(model)
     h.update(f"{cls.__module__}.{cls.__qualname__}".encode())
-    sources = encoder_sources(model)
-    h.update(f"code:{source_digest(sources) if sources else '-'}".encode())
+    h.update(f"code:{source_digest(encoder_sources(model))}".encode())
     h.update(json.dumps(_config_of(model), sort_keys=True, default=str).encode())
     if hasattr(model, "state_dict"):
         for name, t in sorted(model.state_dict().items()):

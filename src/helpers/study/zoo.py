@@ -106,6 +106,11 @@ def _checkpoint_path(name: str, zoo_dir: Path = ZOO_DIR) -> Path:
     return zoo_dir / "checkpoints" / f"{name}.last.pt"
 
 
+def _best_path(checkpoint: Path) -> Path:
+    """``<name>.best.pt`` beside committed checkpoint ``<name>.last.pt``: the weights of its best epoch so far."""
+    return checkpoint.with_name(checkpoint.name.replace(".last.pt", ".best.pt"))
+
+
 def _machine(device: str) -> dict:
     """Where a model trains: torch's device summary, the CPU model and its bf16 support."""
     model = next((ln.split(":", 1)[1].strip() for ln in _cpuinfo_lines() if ln.startswith("model name")), None)
@@ -129,15 +134,23 @@ def train_recipe(r: Recipe, zoo_dir: Path = ZOO_DIR) -> tuple[OrientationNet, Pa
     run = run_folder(r.split, r.train, data, r.val_refs)
     committed = _checkpoint_path(r.name, zoo_dir)
     with run_lock(run):  # held through training (train_or_load takes it again)
-        if not (run / "last.pt").exists() and committed.exists():  # resume from the committed checkpoint
+        # Resume from the committed checkpoint when this cache has none, or an older one (another machine went on).
+        if committed.exists() and not (run / "done.json").exists() and _step(committed) > _step(run / "last.pt"):
             run.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(committed, run / "last.pt")
+            if _best_path(committed).exists():  # the best epoch so far may predate the checkpoint
+                shutil.copyfile(_best_path(committed), run / "best.pt")
             if committed.with_suffix(".provenance.json").exists():
                 shutil.copyfile(committed.with_suffix(".provenance.json"), run / "provenance.json")
         if not (run / "done.json").exists():
             _record_session(r, run)
         model, run, info = train_or_load(r.split, r.train, data, val_refs_per_object=r.val_refs)
     return model, run, info, data
+
+
+def _step(checkpoint: Path) -> int:
+    """The optimiser steps a last.pt has taken (-1: no such file)."""
+    return int(read_checkpoint(checkpoint)["global_step"]) if checkpoint.exists() else -1
 
 
 def recipe_data(r: Recipe) -> Any:
@@ -326,15 +339,23 @@ class _PlainDumper(yaml.SafeDumper):
 
 
 def snapshot(r: Recipe, zoo_dir: Path = ZOO_DIR) -> Path:
-    """Copy the run's last.pt (optimizer and RNG state included) to ``models/checkpoints/<name>.last.pt``
-    so that an unfinished training resumes from it in a later session or on another machine."""
+    """Copy the run's last.pt (optimizer and RNG state included) to ``models/checkpoints/<name>.last.pt``, and its
+    best.pt to ``<name>.best.pt``, so that an unfinished training resumes from them in a later session or on another
+    machine. ValueError when the committed checkpoint is further along than this run (it is never replaced by an
+    older one)."""
     data = recipe_data(r)
     src = run_folder(r.split, r.train, data, r.val_refs) / "last.pt"
     if not src.exists():
         raise FileNotFoundError(f"zoo snapshot {r.name}: no {src} (has its training started?)")
     dst = _checkpoint_path(r.name, zoo_dir)
+    if _step(dst) > _step(src):
+        raise ValueError(f"zoo snapshot {r.name}: {dst} is at step {_step(dst)}, further than this run's {src} "
+                         f"(step {_step(src)}); resume from it with zoo train {r.name} instead of replacing it")
     dst.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(dst, src.read_bytes())
+    # The best epoch's weights travel too: when no later epoch beats it, the resumed run has no other best.pt.
+    if (src.parent / "best.pt").exists():
+        atomic_write_bytes(_best_path(dst), (src.parent / "best.pt").read_bytes())
     if (src.parent / "provenance.json").exists():  # the sessions so far travel with the checkpoint
         atomic_write_bytes(dst.with_suffix(".provenance.json"), (src.parent / "provenance.json").read_bytes())
     return dst

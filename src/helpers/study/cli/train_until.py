@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime as dt
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -51,73 +52,95 @@ def next_epoch_fits(now: float, deadline: float, epoch_s: float) -> bool:
     return now + epoch_s <= deadline
 
 
-def _mtime(path: Path) -> float | None:
+def _epochs_done(history: Path) -> tuple[int, float]:
+    """(epochs recorded in ``history``, the last one's training seconds); (0, 0.0) before the first epoch. The file
+    is replaced atomically, so a read never sees half of it."""
     try:
-        return path.stat().st_mtime
+        entries = read_json(history)["history"]
     except FileNotFoundError:
-        return None
+        return 0, 0.0
+    return (int(entries[-1]["epoch"]), float(entries[-1].get("seconds", 0.0))) if entries else (0, 0.0)
 
 
 def _stop(child: Any, grace_s: float = 60.0) -> None:
-    """Terminate ``child`` (SIGTERM; SIGKILL after ``grace_s`` seconds) and reap it."""
-    child.terminate()
-    try:
-        child.wait(timeout=grace_s)
-    except subprocess.TimeoutExpired:
-        child.kill()
-        child.wait()
+    """Stop ``child`` as Ctrl-C would (SIGINT: its clean-up runs and its locks record no dead owner); SIGTERM, then
+    SIGKILL, after ``grace_s`` seconds each. Reaps it."""
+    for send in (lambda: child.send_signal(signal.SIGINT), child.terminate, child.kill):
+        send()
+        try:
+            child.wait(timeout=grace_s)
+            return
+        except subprocess.TimeoutExpired:
+            continue
 
 
 def watch(child: Any, history: Path, deadline: float, epochs: int, poll_s: float = 5.0,
           clock: Callable[[], float] = time.time, sleep: Callable[[float], None] = time.sleep) -> str:
-    """Wait for training process ``child`` (``poll``/``terminate``/``wait``/``kill``, as subprocess.Popen) whose run
-    writes ``history`` ({"history": [{"epoch": e, "seconds": s, ...}, ...]}) at the end of each of its ``epochs``.
+    """Wait for training process ``child`` (``poll``/``send_signal``/``terminate``/``wait``/``kill``, as
+    subprocess.Popen) whose run records each of its ``epochs`` in ``history`` ({"history": [{"epoch": e,
+    "seconds": s, ...}, ...]}) as the epoch ends; ``deadline`` and ``clock`` in seconds since the epoch.
 
     Returns "finished" (the child exited 0), "stopped" (stopped at an epoch boundary because the next epoch would
     end after ``deadline``) or "deadline" (stopped at the deadline inside an epoch: only that epoch's steps are lost).
     RuntimeError when the child fails."""
-    seen, boundary, epoch_s, final = _mtime(history), None, None, False
+    done, _ = _epochs_done(history)
+    boundary, intervals = None, []
     while True:
         rc = child.poll()
         if rc is not None:
             if rc != 0:
                 raise RuntimeError(f"zoo train: the training process exited with status {rc} (its output is above)")
             return "finished"
-        now, m = clock(), _mtime(history)
-        if m is not None and m != seen:  # an epoch has just ended: the child is at the start of the next one
-            seen = m
-            last = read_json(history)["history"][-1]
-            # Between two boundaries seen here the interval is the whole epoch (validation, saving); before that,
-            # the recorded training seconds with an allowance.
-            epoch_s = now - boundary if boundary is not None else float(last.get("seconds", 0.0)) * FIRST_EPOCH_SLACK
+        now = clock()
+        n, seconds = _epochs_done(history)
+        if n > done:  # an epoch has just ended (counted, not dated: a coarse file clock cannot hide one)
+            done = n
+            # The longest epoch seen, boundary to boundary (validation and saving included: a validating epoch
+            # is the longer one when validation is not every epoch); before the second boundary, the recorded
+            # training seconds with an allowance.
+            if boundary is not None:
+                intervals.append(now - boundary)
+            epoch_s = max(intervals) if intervals else seconds * FIRST_EPOCH_SLACK
             boundary = now
-            # After the last epoch the child is finishing (done.json), not starting another: let it.
-            final = int(last.get("epoch", 0)) >= epochs
-            if not final and not next_epoch_fits(now, deadline, epoch_s):
+            if done < epochs and not next_epoch_fits(now, deadline, epoch_s):
                 _stop(child)
                 return "stopped"
-        if now >= deadline and not final:
+        # After the last epoch the child is finishing (done.json), not starting another: let it.
+        if now >= deadline and done < epochs:
             _stop(child)
             return "deadline"
         sleep(poll_s)
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 def train_until(r: Recipe, deadline: float, recipes_path: str | Path, device: str = "auto",
                 workers: int = 0) -> str:
     """Train (or resume) recipe ``r`` in a child process until it finishes or until the last epoch boundary before
     ``deadline`` (epoch seconds); a stopped run is snapshotted to ``models/checkpoints/``. Returns :func:`watch`'s
-    answer. The views are rendered (or loaded) here first, so the child only loads them."""
+    answer, or "interrupted" (Ctrl-C or SIGTERM here: the child is stopped and its checkpoint kept as well). The
+    views are rendered (or loaded) here first, so the child only loads them."""
+    if os.environ.get("RANK") or os.environ.get("WORLD_SIZE", "1") != "1":
+        raise ValueError("zoo train --until: not under torchrun (each rank would start its own training)")
     run = run_folder(r.split, r.train, recipe_data(r), r.val_refs)
     cmd = [sys.executable, "-m", "helpers.study.cli.zoo", "train", r.name, "--recipes", str(recipes_path),
            "--device", device] + (["--workers", str(workers)] if workers else [])
     env = {**os.environ, **({"HELPERS_CACHE_DIR": r.data.cache_dir} if r.data.cache_dir else {})}
-    child = subprocess.Popen(cmd, env=env)
+    # Its own session: Ctrl-C here reaches this process alone, which then stops the child and keeps its checkpoint.
+    child = subprocess.Popen(cmd, env=env, start_new_session=True)
+    # SIGTERM here (kill, a scheduler) ends the watch like Ctrl-C: the child never trains on unwatched.
+    old = signal.signal(signal.SIGTERM, _interrupt)
     try:
         how = watch(child, run / "history.json", deadline, r.train.epochs)
-    except BaseException:
-        if child.poll() is None:  # interrupted here (Ctrl-C): the child goes too, nothing trains unwatched
+    except KeyboardInterrupt:
+        _stop(child)
+        how = "interrupted"
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        if child.poll() is None:  # an error in the watch itself: nothing trains unwatched
             _stop(child)
-        raise
     if how != "finished":
         try:
             kept = f"checkpoint {snapshot(r)}"

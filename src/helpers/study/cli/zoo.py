@@ -24,7 +24,8 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--recipes", default=str(RECIPES), help="recipe file (default: the long preset's zoo.yaml)")
     t.add_argument("--workers", type=int, default=0, help="rendering processes (default: the recipe's)")
     t.add_argument("--until", default="", help="stop at the last epoch boundary before this local time (HH:MM) "
-                   "and copy the checkpoint to models/checkpoints/ (resume later with zoo train NAME)")
+                   "and copy the checkpoint to models/checkpoints/ (resume later with zoo train NAME); exit "
+                   "status 3 when a training was stopped before its end")
     t.add_argument("--minutes", type=float, default=0.0, help="as --until, this many minutes from now")
     s = sub.add_parser("snapshot", help="commit-ready copy of an unfinished run's last.pt")
     s.add_argument("names", nargs="+")
@@ -43,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
             if a.workers:  # rendering processes do not change the pixels (not part of any cache key)
                 r = replace(r, data=replace(r.data, workers=a.workers))
             if deadline is not None and train_until(r, deadline, a.recipes, a.device, a.workers) != "finished":
-                return 0  # the deadline came: the later names wait for the next session
+                return 3  # stopped before its end (its checkpoint kept): the later names wait for the next session
             model, run, info, data = train_recipe(r)  # with a deadline: loads the run the child finished
             print(f"{name}: trained in {run}")
             if a.publish:

@@ -7,33 +7,43 @@ timings, so a result read back has an empty ``seconds_per_query``: callers that 
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from ...core.configs import SearchConfig
 from ...core import rotations
+from ...core.configs import SearchConfig
 from ...core.fileio import atomic_write_text, source_digest, stable_hash
 from ...core.paths import cache_dir
 from ...core.views import ObjectViews
 from ...evaluation import metrics
 from ...evaluation.metrics import summarise_queries
+from ...net import fusion_kernel
 from ...search import retrieval
 from ...search.features import model_fingerprint
-from .. import pipeline
-from ..pipeline import StudyData, evaluate, reference_bank
+from ..pipeline import StudyData, encode_queries, evaluate, reference_bank
 
 #: The error threshold (degrees) every cached table is scored with (Rota. Acc.'s 30 deg).
 THRESHOLD_DEG = 30.0
 
 
 def scoring_sources() -> list[Path]:
-    """The source files that turn encoded views into a per-query table beyond the encoder (which
-    :func:`model_fingerprint` covers): the search package, the pipeline's evaluate, the error metrics and the
-    rotation maths (symmetric errors)."""
-    return [Path(retrieval.__file__).parent, Path(pipeline.__file__), Path(metrics.__file__), Path(rotations.__file__)]
+    """The source files that turn encoded views into a per-query table beyond the encoder and the model's own
+    ``score`` (which :func:`model_fingerprint` covers): the search package, the fused scoring kernel, the error
+    metrics and the rotation maths (symmetric errors)."""
+    net = Path(fusion_kernel.__file__).parent
+    return [Path(retrieval.__file__).parent, net / "fusion_kernel.py", net / "fusion_kernel.cpp",
+            Path(metrics.__file__), Path(rotations.__file__)]
+
+
+def scoring_code() -> str:
+    """Digest of :func:`scoring_sources` and of the pipeline's own steps that evaluate (their source text alone:
+    the rest of ``study/pipeline.py`` is data and training code, whose edits leave a table valid)."""
+    steps = [inspect.getsource(f) for f in (evaluate, reference_bank, encode_queries)]
+    return stable_hash([source_digest(scoring_sources()), steps])
 
 
 def evals_folder(data: StudyData) -> Path:
@@ -46,7 +56,7 @@ def eval_key(model: Any, data: StudyData, bench: list[str], queries: dict[str, O
     """What a per-query table depends on: the weights, the reference sets of ``bench`` (and how many of each,
     0: all), the query sets, the search and the symmetries the errors are scored under (a table scored before
     an object's symmetries were declared, or changed, is not reused) and the code that scores
-    (:func:`scoring_sources`: a table of older code is not reused either)."""
+    (:func:`scoring_code`: a table of older code is not reused either)."""
     sym = {n: [e.symmetries, e.symmetry_axes] for n, e in ((n, data.manifest.object(n)) for n in queries)}
     # Greedy scores every reference: its answers depend on nothing else of the config (how it batches the work
     # included, tests/test_retrieval.py), so notebook 04's greedy and notebook 13's protocol search share tables.
@@ -54,7 +64,7 @@ def eval_key(model: Any, data: StudyData, bench: list[str], queries: dict[str, O
     return stable_hash({"model": model_fingerprint(model), "bank": [data.key(n) for n in bench], "eval_refs": n_refs,
                         "queries": {n: [v.meta.get("key"), len(v)] for n, v in queries.items()},
                         "search": how, "threshold_deg": THRESHOLD_DEG, "symmetries": sym,
-                        "columns": "R_est,R_gt", "code": source_digest(scoring_sources())})
+                        "columns": "R_est,R_gt", "code": scoring_code()})
 
 
 def cached_evaluate(model: Any, data: StudyData, bench: list[str], queries: dict[str, ObjectViews],
