@@ -1,5 +1,5 @@
 """Training up to a deadline (helpers.study.cli.train_until): the child is stopped at the last epoch boundary
-before the deadline, never after its last epoch, and a stopped run can be resumed from its snapshot."""
+before the deadline, never after its last epoch (a real child trains in tests/test_zoo.py)."""
 
 from __future__ import annotations
 
@@ -116,18 +116,3 @@ def test_deadlines_are_read_from_either_option_and_bad_ones_are_named():
         with pytest.raises(ValueError, match=match):
             tu.deadline_from(now=now, **kw)
 
-
-def test_a_real_training_child_finishes_and_its_run_is_the_one_loaded(tmp_path, capsys):
-    """The child is ``zoo train NAME`` on the same recipe file and cache: with a far deadline it trains the tiny
-    recipe to the end, and the run this process then loads is the one it finished."""
-    import yaml
-
-    from helpers.study import zoo
-    from test_zoo import TINY
-
-    path = tmp_path / "zoo.yaml"
-    path.write_text(yaml.safe_dump(TINY))
-    r = zoo.recipes(path, cache_dir=str(tmp_path / "cache"), device="cpu")["tiny"]
-    assert tu.train_until(r, dt.datetime.now().timestamp() + 1800, path, "cpu") == "finished"
-    model, run, info, _ = zoo.train_recipe(r)
-    assert (run / "done.json").exists() and len(info["history"]["history"]) == TINY["train"]["epochs"]

@@ -1,7 +1,9 @@
 """The model zoo: committed files match their sha256, load, and reproduce their recorded scores;
-a recipe trains, resumes from a committed checkpoint, publishes and is refused when damaged."""
+a recipe trains (in a child process, as zoo train --until runs it), resumes from a committed checkpoint,
+publishes and is refused when damaged."""
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +13,7 @@ import yaml
 
 from helpers.core.precision import autocast, native_bf16, resolve_precision
 from helpers.study import zoo
+from helpers.study.cli.train_until import train_until
 
 TINY = {
     "data": {"image_size": 64, "render_size": 64, "n_references": 8, "n_train_queries": 4, "n_val_queries": 2,
@@ -106,7 +109,11 @@ def test_recipes_merge_overrides_and_name_bad_entries(tmp_path):
 def test_recipe_trains_resumes_from_committed_checkpoint_publishes_and_refuses_damage(tmp_path):
     zdir = tmp_path / "models"
     r1 = _recipes(tmp_path, 1, str(tmp_path / "cacheA"))["tiny"]
+    # Trained by a real child `zoo train tiny` (zoo train --until, far deadline): same recipe file and cache, so
+    # the run this process then loads is the one the child finished.
+    assert train_until(r1, time.time() + 1800, tmp_path / "zoo-1.yaml", "cpu") == "finished"
     _, run1, _, _ = zoo.train_recipe(r1, zoo_dir=zdir)
+    assert (run1 / "done.json").exists()
     zoo.snapshot(r1, zoo_dir=zdir)
     assert (zdir / "checkpoints" / "tiny.last.pt").exists() and (zdir / "checkpoints" / "tiny.best.pt").exists()
     # Another machine (empty cache, other precision), longer budget: resumes from the committed checkpoint.
