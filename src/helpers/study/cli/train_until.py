@@ -129,7 +129,10 @@ def train_until(r: Recipe, deadline: float, recipes_path: str | Path, device: st
            "--device", device] + (["--workers", str(workers)] if workers else [])
     env = {**os.environ, **({"HELPERS_CACHE_DIR": r.data.cache_dir} if r.data.cache_dir else {})}
     # Its own session: Ctrl-C here reaches this process alone, which then stops the child and keeps its checkpoint.
-    child = subprocess.Popen(cmd, env=env, start_new_session=True)
+    # SIGINT back to its default: a shell's background job inherits it ignored, and then Python never raises
+    # KeyboardInterrupt in the child (seen: the stop waited out its grace and fell to SIGTERM).
+    child = subprocess.Popen(cmd, env=env, start_new_session=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     # SIGTERM here (kill, a scheduler) ends the watch like Ctrl-C: the child never trains on unwatched.
     old = signal.signal(signal.SIGTERM, _interrupt)
     try:
