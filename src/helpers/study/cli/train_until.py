@@ -2,8 +2,8 @@
 ``--minutes N``).
 
 The training runs in a child process (``zoo train NAME`` without a deadline); this process watches the run folder's
-``history.json``, the last file an epoch writes. When the next epoch would end after the deadline (estimated from the
-last epoch, validation included), the child is stopped at that epoch boundary, so no finished step is lost, and the
+``history.json``, the last file an epoch writes. When the next epoch would end after the deadline (estimated by the
+longest epoch seen, validation included), the child is stopped at that epoch boundary, so no finished step is lost, and the
 run's ``last.pt`` is copied to ``models/checkpoints/`` (:func:`helpers.study.zoo.snapshot`), ready to commit; a later
 ``zoo train NAME`` resumes from it on any machine. Why a child and not a flag inside ``train``: stopping between
 epochs needs nothing from the training code, and a resumed run is already identical to an uninterrupted one.
@@ -84,7 +84,7 @@ def watch(child: Any, history: Path, deadline: float, epochs: int, poll_s: float
     end after ``deadline``) or "deadline" (stopped at the deadline inside an epoch: only that epoch's steps are lost).
     RuntimeError when the child fails."""
     done, _ = _epochs_done(history)
-    boundary, intervals = None, []
+    boundary, longest = None, 0.0
     while True:
         rc = child.poll()
         if rc is not None:
@@ -99,8 +99,8 @@ def watch(child: Any, history: Path, deadline: float, epochs: int, poll_s: float
             # is the longer one when validation is not every epoch); before the second boundary, the recorded
             # training seconds with an allowance.
             if boundary is not None:
-                intervals.append(now - boundary)
-            epoch_s = max(intervals) if intervals else seconds * FIRST_EPOCH_SLACK
+                longest = max(longest, now - boundary)
+            epoch_s = longest if boundary is not None else seconds * FIRST_EPOCH_SLACK
             boundary = now
             if done < epochs and not next_epoch_fits(now, deadline, epoch_s):
                 _stop(child)
